@@ -1,0 +1,128 @@
+//! Domain values to protobuf messages (the way out; the way in is
+//! [`super::validate`]), and domain errors to gRPC statuses.
+
+use tonic::Status;
+
+use crate::keyframe::Pose;
+use crate::pipeline::query::{Candidate, QueryError, QueryOutcome};
+use crate::proto;
+use crate::store::StoreError;
+
+pub fn pose(p: &Pose) -> proto::Pose {
+    let [x, y, z] = p.translation;
+    let [w, qx, qy, qz] = p.rotation;
+    proto::Pose {
+        translation: Some(proto::Vec3 { x, y, z }),
+        rotation: Some(proto::Quaternion {
+            w,
+            x: qx,
+            y: qy,
+            z: qz,
+        }),
+    }
+}
+
+fn index(i: usize) -> u32 {
+    u32::try_from(i).unwrap_or(u32::MAX)
+}
+
+pub fn candidate(c: &Candidate) -> proto::Candidate {
+    proto::Candidate {
+        robot_id: c.key.robot_id.clone(),
+        session_id: c.key.session_id.clone(),
+        keyframe_id: c.key.keyframe_id,
+        frame_id: c.frame_id,
+        map_id: c.map_id,
+        timestamp: c.timestamp,
+        pose: Some(pose(&c.pose)),
+        score: c.score,
+        evidence: Some(proto::Evidence {
+            scene_score: c.scene.score,
+            descriptor_cosine: c.scene.cosine,
+            scene_compatibility: c.scene.scene_compatibility,
+            temporal_depth: index(c.scene.depth),
+            object_score: c.object_score,
+            text_score: c.text_score,
+            text_distinctiveness: c.text_distinctiveness,
+            corroboration: c.corroboration,
+            object_matches: c
+                .object_matches
+                .iter()
+                .map(|m| proto::ObjectMatch {
+                    query_object: index(m.matched.query_object),
+                    candidate_object: index(m.matched.candidate_object),
+                    class_name: m.class_name.clone(),
+                    affinity: m.matched.affinity,
+                    spatial: m.matched.spatial,
+                })
+                .collect(),
+            text_matches: c
+                .text_matches
+                .iter()
+                .map(|m| proto::TextMatch {
+                    query_object: index(m.matched.query_object),
+                    candidate_object: index(m.matched.candidate_object),
+                    query_text: m.query_text.clone(),
+                    candidate_text: m.candidate_text.clone(),
+                    similarity: m.matched.similarity,
+                    score: m.matched.score,
+                    distinctiveness: m.matched.distinctiveness,
+                })
+                .collect(),
+        }),
+    }
+}
+
+pub fn query_response(outcome: &QueryOutcome) -> proto::QueryResponse {
+    proto::QueryResponse {
+        candidates: outcome.candidates.iter().map(candidate).collect(),
+        eligible_keyframes: outcome.eligible,
+        used_predecessor_ids: outcome.used_predecessors.clone(),
+        timings: outcome
+            .timings
+            .iter()
+            .map(|(stage, d)| proto::StageTiming {
+                stage: (*stage).to_string(),
+                seconds: d.as_secs_f64(),
+            })
+            .collect(),
+    }
+}
+
+impl From<StoreError> for Status {
+    fn from(e: StoreError) -> Status {
+        match e {
+            StoreError::DimensionMismatch { .. } => {
+                Status::invalid_argument(format!("features.descriptor: {e}"))
+            }
+            StoreError::QueueFull { .. } => {
+                let mut status = Status::resource_exhausted(e.to_string());
+                status.metadata_mut().insert(
+                    "retry-after-ms",
+                    tonic::metadata::MetadataValue::from(50u32),
+                );
+                status
+            }
+            StoreError::WriterGone => Status::unavailable(e.to_string()),
+            _ => {
+                tracing::error!(error = %e, "store failure");
+                Status::internal(e.to_string())
+            }
+        }
+    }
+}
+
+impl From<QueryError> for Status {
+    fn from(e: QueryError) -> Status {
+        match e {
+            QueryError::Invalid(field) => Status::invalid_argument(field.to_string()),
+            QueryError::NotStored(_) => Status::not_found(format!("keyframe_id: {e}")),
+        }
+    }
+}
+
+impl From<super::validate::InvalidField> for Status {
+    fn from(e: super::validate::InvalidField) -> Status {
+        Status::invalid_argument(e.to_string())
+    }
+}

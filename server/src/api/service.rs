@@ -1,0 +1,231 @@
+//! The tonic implementation of `humem.v1.PlaceRecognition`.
+//!
+//! Each handler validates the whole request first (nothing is changed by a
+//! bad request), then hands domain values to the store or the query
+//! pipeline. Queries scan the index on tokio's blocking pool so that a large
+//! scan never stalls the async runtime.
+
+use std::sync::Arc;
+
+use tonic::{Request, Response, Status};
+
+use super::convert;
+use super::validate::{self, InvalidField, Limits};
+use crate::keyframe::SemanticKeyframe;
+use crate::pipeline;
+use crate::proto;
+use crate::proto::place_recognition_server::PlaceRecognition;
+use crate::store::{MapKey, Mutation, Store};
+use crate::vpr::VprParams;
+
+/// The service state shared by all requests.
+#[derive(Clone)]
+pub struct PlaceRecognitionService {
+    store: Store,
+    params: Arc<VprParams>,
+    limits: Limits,
+}
+
+impl PlaceRecognitionService {
+    pub fn new(store: Store, params: VprParams, limits: Limits) -> Self {
+        PlaceRecognitionService {
+            store,
+            params: Arc::new(params),
+            limits,
+        }
+    }
+
+    /// Refuses descriptors whose length differs from the store's, naming the
+    /// keyframe (the writer checks again, for the very first keyframes).
+    fn check_dims(
+        &self,
+        field: impl Fn(usize) -> String,
+        keyframes: &[SemanticKeyframe],
+    ) -> Result<(), Status> {
+        let stored = self.store.index().dim();
+        let expected = if stored == 0 {
+            keyframes.first().map_or(0, |k| k.features.descriptor.len())
+        } else {
+            stored
+        };
+        for (i, kf) in keyframes.iter().enumerate() {
+            let found = kf.features.descriptor.len();
+            if found != expected {
+                return Err(InvalidField {
+                    field: format!("{}.features.descriptor", field(i)),
+                    reason: format!(
+                        "has {found} values but this store holds {expected}-value descriptors"
+                    ),
+                }
+                .into());
+            }
+        }
+        Ok(())
+    }
+}
+
+#[tonic::async_trait]
+impl PlaceRecognition for PlaceRecognitionService {
+    #[tracing::instrument(skip_all, fields(robot, session, keyframe))]
+    async fn insert(
+        &self,
+        request: Request<proto::InsertRequest>,
+    ) -> Result<Response<proto::InsertResponse>, Status> {
+        let kf = validate::keyframe(
+            "keyframe",
+            request.get_ref().keyframe.as_ref(),
+            &self.limits,
+        )?;
+        let span = tracing::Span::current();
+        span.record("robot", kf.key.robot_id.as_str());
+        span.record("session", kf.key.session_id.as_str());
+        span.record("keyframe", kf.key.keyframe_id);
+        self.check_dims(|_| "keyframe".into(), std::slice::from_ref(&kf))?;
+        let outcome = self.store.apply(Mutation::Insert(vec![kf])).await?;
+        Ok(Response::new(proto::InsertResponse {
+            replaced: outcome.replaced > 0,
+            store_keyframes: outcome.store_keyframes,
+        }))
+    }
+
+    #[tracing::instrument(skip_all, fields(keyframes))]
+    async fn insert_batch(
+        &self,
+        request: Request<proto::InsertBatchRequest>,
+    ) -> Result<Response<proto::InsertBatchResponse>, Status> {
+        let keyframes = validate::batch(&request.get_ref().keyframes, &self.limits)?;
+        tracing::Span::current().record("keyframes", keyframes.len());
+        self.check_dims(|i| format!("keyframes[{i}]"), &keyframes)?;
+        let outcome = self.store.apply(Mutation::Insert(keyframes)).await?;
+        Ok(Response::new(proto::InsertBatchResponse {
+            replaced: u32::try_from(outcome.replaced).unwrap_or(u32::MAX),
+            store_keyframes: outcome.store_keyframes,
+        }))
+    }
+
+    #[tracing::instrument(skip_all, fields(robot, session, map, frame))]
+    async fn query(
+        &self,
+        request: Request<proto::QueryRequest>,
+    ) -> Result<Response<proto::QueryResponse>, Status> {
+        let spec = validate::query(request.get_ref(), &self.limits)?;
+        let span = tracing::Span::current();
+        span.record("robot", spec.session.robot_id.as_str());
+        span.record("session", spec.session.session_id.as_str());
+        if let Some(map) = spec.map_id {
+            span.record("map", map);
+        }
+        if let Some(frame) = spec.frame_id {
+            span.record("frame", frame);
+        }
+        let index = self.store.index_handle();
+        let params = self.params.clone();
+        let outcome = tokio::task::spawn_blocking(move || {
+            let index = index.read();
+            pipeline::query::run(&index, &params, &spec)
+        })
+        .await
+        .map_err(|e| Status::internal(format!("query task failed: {e}")))??;
+        tracing::debug!(
+            candidates = outcome.candidates.len(),
+            eligible = outcome.eligible,
+            "query answered"
+        );
+        Ok(Response::new(convert::query_response(&outcome)))
+    }
+
+    #[tracing::instrument(skip_all)]
+    async fn erase(
+        &self,
+        request: Request<proto::EraseRequest>,
+    ) -> Result<Response<proto::EraseResponse>, Status> {
+        let (session, keyframe_ids) = validate::erase(request.get_ref())?;
+        let outcome = self
+            .store
+            .apply(Mutation::Erase {
+                session,
+                keyframe_ids,
+            })
+            .await?;
+        Ok(Response::new(proto::EraseResponse {
+            erased: outcome.affected,
+        }))
+    }
+
+    #[tracing::instrument(skip_all)]
+    async fn reset_map(
+        &self,
+        request: Request<proto::ResetMapRequest>,
+    ) -> Result<Response<proto::ResetMapResponse>, Status> {
+        let r = request.get_ref();
+        let session = validate::session("", &r.robot_id, &r.session_id)?;
+        let map_id = r.map_id.ok_or_else(|| InvalidField {
+            field: "map_id".into(),
+            reason: "required".into(),
+        })?;
+        let outcome = self
+            .store
+            .apply(Mutation::ResetMap(MapKey { session, map_id }))
+            .await?;
+        Ok(Response::new(proto::ResetMapResponse {
+            erased: outcome.affected,
+        }))
+    }
+
+    #[tracing::instrument(skip_all)]
+    async fn reset_session(
+        &self,
+        request: Request<proto::ResetSessionRequest>,
+    ) -> Result<Response<proto::ResetSessionResponse>, Status> {
+        let r = request.get_ref();
+        let session = validate::session("", &r.robot_id, &r.session_id)?;
+        let outcome = self.store.apply(Mutation::ResetSession(session)).await?;
+        Ok(Response::new(proto::ResetSessionResponse {
+            erased: outcome.affected,
+        }))
+    }
+
+    #[tracing::instrument(skip_all)]
+    async fn update_poses(
+        &self,
+        request: Request<proto::UpdatePosesRequest>,
+    ) -> Result<Response<proto::UpdatePosesResponse>, Status> {
+        let (session, updates) = validate::pose_updates(request.get_ref())?;
+        let outcome = self
+            .store
+            .apply(Mutation::UpdatePoses { session, updates })
+            .await?;
+        Ok(Response::new(proto::UpdatePosesResponse {
+            updated: outcome.affected,
+            missing_keyframe_ids: outcome.missing,
+        }))
+    }
+
+    async fn stats(
+        &self,
+        _request: Request<proto::StatsRequest>,
+    ) -> Result<Response<proto::StatsResponse>, Status> {
+        let (keyframes, descriptor_dim, maps) = {
+            let index = self.store.index();
+            let maps = index
+                .map_counts()
+                .into_iter()
+                .map(|(map, count)| proto::MapStats {
+                    robot_id: map.session.robot_id,
+                    session_id: map.session.session_id,
+                    map_id: map.map_id,
+                    keyframes: count as u64,
+                })
+                .collect();
+            (index.len() as u64, index.dim() as u32, maps)
+        };
+        Ok(Response::new(proto::StatsResponse {
+            keyframes,
+            descriptor_dim,
+            maps,
+            disk_bytes: self.store.disk_bytes(),
+            format_version: u32::from(crate::store::codec::FORMAT_VERSION),
+            server_version: env!("CARGO_PKG_VERSION").into(),
+        }))
+    }
+}

@@ -1,0 +1,133 @@
+//! Validation normalises what it accepts and names what it refuses.
+
+use super::*;
+
+const LIMITS: Limits = Limits {
+    scene_top_k: 2,
+    min_frame_gap: 100,
+    threshold: 0.7,
+    top_n: 5,
+};
+
+fn keyframe_msg() -> proto::Keyframe {
+    proto::Keyframe {
+        robot_id: "r".into(),
+        session_id: "s".into(),
+        keyframe_id: Some(0),
+        frame_id: Some(0),
+        timestamp: 0.5,
+        map_id: Some(0),
+        pose: Some(proto::Pose {
+            translation: Some(proto::Vec3 {
+                x: 1.0,
+                y: 2.0,
+                z: 3.0,
+            }),
+            rotation: Some(proto::Quaternion {
+                w: 2.0,
+                x: 0.0,
+                y: 0.0,
+                z: 0.0,
+            }),
+        }),
+        content: Some(proto::keyframe::Content::Features(proto::Features {
+            descriptor: vec![3.0, 4.0],
+            scene: vec![
+                proto::SceneClass {
+                    class_id: 5,
+                    probability: 0.1,
+                },
+                proto::SceneClass {
+                    class_id: 9,
+                    probability: 0.5,
+                },
+                proto::SceneClass {
+                    class_id: 2,
+                    probability: 0.3,
+                },
+            ],
+            objects: vec![],
+        })),
+    }
+}
+
+#[test]
+fn accepted_keyframes_are_normalised() {
+    let kf = keyframe("keyframe", Some(&keyframe_msg()), &LIMITS).unwrap();
+    // Id 0 is a valid id when it is present.
+    assert_eq!(kf.key.keyframe_id, 0);
+    assert_eq!(kf.features.descriptor, vec![0.6, 0.8]);
+    assert_eq!(kf.pose.rotation, [1.0, 0.0, 0.0, 0.0]);
+    // Most probable first, truncated to the configured top-k.
+    let scene: Vec<u32> = kf.features.scene.iter().map(|c| c.class_id).collect();
+    assert_eq!(scene, vec![9, 2]);
+}
+
+#[test]
+fn ids_must_be_safe_key_components() {
+    let mut msg = keyframe_msg();
+    msg.session_id = "a\0b".into();
+    let err = keyframe("keyframe", Some(&msg), &LIMITS).unwrap_err();
+    assert_eq!(
+        err.to_string(),
+        "keyframe.session_id: contains a NUL character"
+    );
+    msg.session_id = "x".repeat(129);
+    let err = keyframe("keyframe", Some(&msg), &LIMITS).unwrap_err();
+    assert_eq!(err.field, "keyframe.session_id");
+}
+
+#[test]
+fn duplicate_keys_in_a_batch_are_refused() {
+    let err = batch(&[keyframe_msg(), keyframe_msg()], &LIMITS).unwrap_err();
+    assert_eq!(
+        err.to_string(),
+        "keyframes[1].keyframe_id: the same keyframe appears twice in the batch"
+    );
+    assert_eq!(batch(&[], &LIMITS).unwrap_err().field, "keyframes");
+}
+
+#[test]
+fn repeated_scene_classes_are_refused() {
+    let mut msg = keyframe_msg();
+    if let Some(proto::keyframe::Content::Features(f)) = msg.content.as_mut() {
+        f.scene[2].class_id = 5;
+    }
+    let err = keyframe("keyframe", Some(&msg), &LIMITS).unwrap_err();
+    assert_eq!(
+        err.to_string(),
+        "keyframe.features.scene[2].class_id: class 5 appears twice"
+    );
+}
+
+#[test]
+fn query_defaults_come_from_the_limits() {
+    let q = proto::QueryRequest {
+        robot_id: "r".into(),
+        keyframe_id: Some(3),
+        ..Default::default()
+    };
+    let spec = query(&q, &LIMITS).unwrap();
+    assert_eq!(spec.min_frame_gap, 100);
+    assert_eq!(spec.top_n, 5);
+    assert_eq!(spec.threshold, 0.7);
+    assert_eq!(spec.layers, Layers::FULL);
+    assert_eq!(spec.scope, Scope::AllMaps);
+    assert_eq!(spec.kind, proto::QueryKind::LoopClosure);
+}
+
+#[test]
+fn a_query_with_features_needs_a_frame_id() {
+    let q = proto::QueryRequest {
+        robot_id: "r".into(),
+        content: Some(proto::query_request::Content::Features(proto::Features {
+            descriptor: vec![1.0],
+            ..Default::default()
+        })),
+        ..Default::default()
+    };
+    assert_eq!(
+        query(&q, &LIMITS).unwrap_err().to_string(),
+        "frame_id: required"
+    );
+}

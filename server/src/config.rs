@@ -1,0 +1,213 @@
+//! Service configuration: defaults that run out of the box, overridden by a
+//! TOML file, then by `HUMEM_*` environment variables, then by command-line
+//! flags (figment merges the layers, so every setting has one name in all
+//! three: `store.data_dir` is `[store] data_dir` in TOML and
+//! `HUMEM_STORE__DATA_DIR` in the environment).
+
+use std::net::SocketAddr;
+use std::path::{Path, PathBuf};
+
+use figment::providers::{Env, Format, Serialized, Toml};
+use figment::Figment;
+use serde::{Deserialize, Serialize};
+
+use crate::vpr::VprParams;
+
+/// The whole configuration.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize, Default)]
+#[serde(default, deny_unknown_fields)]
+pub struct Config {
+    pub server: ServerConfig,
+    pub store: StoreConfig,
+    pub query: QueryDefaults,
+    pub vpr: VprParams,
+    pub log: LogConfig,
+}
+
+/// The gRPC endpoint.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(default, deny_unknown_fields)]
+pub struct ServerConfig {
+    /// Address the gRPC server listens on.
+    pub listen: SocketAddr,
+    /// Largest request or response message, in bytes.
+    pub max_message_bytes: usize,
+}
+
+impl Default for ServerConfig {
+    fn default() -> Self {
+        ServerConfig {
+            listen: SocketAddr::from(([127, 0, 0, 1], 50051)),
+            max_message_bytes: 16 * 1024 * 1024,
+        }
+    }
+}
+
+/// The keyframe store.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(default, deny_unknown_fields)]
+pub struct StoreConfig {
+    /// Directory of the sled database.
+    pub data_dir: PathBuf,
+    /// Descriptor length; 0 takes it from the first keyframe stored.
+    pub descriptor_dim: usize,
+    /// Changes waiting for the writer before inserts are pushed back.
+    pub write_queue: usize,
+    /// Scene classes kept per keyframe (the most probable ones).
+    pub scene_top_k: usize,
+}
+
+impl Default for StoreConfig {
+    fn default() -> Self {
+        StoreConfig {
+            data_dir: PathBuf::from("./data"),
+            descriptor_dim: 0,
+            write_queue: 1024,
+            scene_top_k: 16,
+        }
+    }
+}
+
+/// Defaults of query fields a client leaves unset.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(default, deny_unknown_fields)]
+pub struct QueryDefaults {
+    /// Minimum source-frame gap to keyframes of the querying session.
+    pub min_frame_gap: u64,
+}
+
+impl Default for QueryDefaults {
+    fn default() -> Self {
+        QueryDefaults { min_frame_gap: 100 }
+    }
+}
+
+/// Log output.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(default, deny_unknown_fields)]
+pub struct LogConfig {
+    /// `plain` or `json`.
+    pub format: LogFormat,
+    /// A `tracing` filter, e.g. `info` or `humem=debug,info`.
+    pub filter: String,
+}
+
+impl Default for LogConfig {
+    fn default() -> Self {
+        LogConfig {
+            format: LogFormat::Plain,
+            filter: "info".into(),
+        }
+    }
+}
+
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize, clap::ValueEnum)]
+#[serde(rename_all = "lowercase")]
+pub enum LogFormat {
+    Plain,
+    Json,
+}
+
+/// Errors of loading the configuration.
+#[derive(Debug, thiserror::Error)]
+pub enum ConfigError {
+    #[error("configuration file {0} does not exist")]
+    MissingFile(PathBuf),
+    #[error("configuration: {0}")]
+    Invalid(String),
+}
+
+impl Config {
+    /// Loads defaults < `file` (if given) < `HUMEM_*` environment, then
+    /// applies `overrides` (from flags) on top.
+    pub fn load(file: Option<&Path>, overrides: Figment) -> Result<Config, ConfigError> {
+        let mut figment = Figment::from(Serialized::defaults(Config::default()));
+        if let Some(file) = file {
+            if !file.exists() {
+                return Err(ConfigError::MissingFile(file.to_path_buf()));
+            }
+            figment = figment.merge(Toml::file(file));
+        }
+        // HUMEM_CONFIG names the file and HUMEM_SERVER_URL is for the client;
+        // neither is a setting.
+        let env = Env::prefixed("HUMEM_")
+            .filter(|key| key != "config" && key != "server_url")
+            .split("__");
+        let config: Config = figment
+            .merge(env)
+            .merge(overrides)
+            .extract()
+            .map_err(|e| ConfigError::Invalid(e.to_string()))?;
+        config.validate()?;
+        Ok(config)
+    }
+
+    fn validate(&self) -> Result<(), ConfigError> {
+        self.vpr
+            .validate()
+            .map_err(|e| ConfigError::Invalid(format!("vpr.{e}")))?;
+        if self.store.scene_top_k == 0 {
+            return Err(ConfigError::Invalid(
+                "store.scene_top_k must be at least 1".into(),
+            ));
+        }
+        if self.store.write_queue == 0 {
+            return Err(ConfigError::Invalid(
+                "store.write_queue must be at least 1".into(),
+            ));
+        }
+        if self.server.max_message_bytes < 1024 {
+            return Err(ConfigError::Invalid(
+                "server.max_message_bytes must be at least 1024".into(),
+            ));
+        }
+        Ok(())
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn defaults_run_out_of_the_box() {
+        let config = Config::load(None, Figment::new()).unwrap();
+        assert_eq!(config.server.listen.to_string(), "127.0.0.1:50051");
+        assert_eq!(config.store.data_dir, PathBuf::from("./data"));
+        assert_eq!(config.query.min_frame_gap, 100);
+        assert_eq!(config.vpr, VprParams::default());
+    }
+
+    #[test]
+    fn file_then_flags_override_defaults() {
+        let dir = tempfile::tempdir().unwrap();
+        let file = dir.path().join("humem.toml");
+        std::fs::write(
+            &file,
+            "[store]\ndata_dir = \"/var/lib/humem\"\n[vpr]\ntau_s = 0.5\n[log]\nformat = \"json\"\n",
+        )
+        .unwrap();
+        let flags = Figment::new().merge(Serialized::default("server.listen", "0.0.0.0:1"));
+        let config = Config::load(Some(&file), flags).unwrap();
+        assert_eq!(config.store.data_dir, PathBuf::from("/var/lib/humem"));
+        assert_eq!(config.vpr.tau_s, 0.5);
+        assert_eq!(config.log.format, LogFormat::Json);
+        assert_eq!(config.server.listen.to_string(), "0.0.0.0:1");
+    }
+
+    #[test]
+    fn unknown_keys_and_bad_values_are_refused() {
+        let dir = tempfile::tempdir().unwrap();
+        let file = dir.path().join("humem.toml");
+        std::fs::write(&file, "[store]\ndata_dri = \"x\"\n").unwrap();
+        let err = Config::load(Some(&file), Figment::new()).unwrap_err();
+        assert!(err.to_string().contains("data_dri"), "{err}");
+        std::fs::write(&file, "[vpr]\nsigma_m = -1.0\n").unwrap();
+        let err = Config::load(Some(&file), Figment::new()).unwrap_err();
+        assert!(err.to_string().contains("sigma_m"), "{err}");
+        assert!(matches!(
+            Config::load(Some(&dir.path().join("nope.toml")), Figment::new()),
+            Err(ConfigError::MissingFile(_))
+        ));
+    }
+}

@@ -1,0 +1,122 @@
+//! The semantic keyframe `K_i = (i, f_i, t_i, m_i, T_i, S_i, O_i)` of the
+//! paper, plus its owner (robot and session), as plain data.
+//!
+//! These types are what every layer below the API speaks: `vpr/` scores them,
+//! `store/` persists them, `api/` converts protobuf messages into them after
+//! validation. They carry no gRPC or storage concerns, so that the scoring
+//! can be tested and benchmarked on its own.
+
+use serde::{Deserialize, Serialize};
+
+/// Identity of a keyframe. ORB-SLAM3 keyframe ids are unique only within one
+/// robot's run, and restart after a full reset, so the robot and the session
+/// are part of the key.
+#[derive(Debug, Clone, PartialEq, Eq, Hash, PartialOrd, Ord, Serialize, Deserialize)]
+pub struct KeyframeKey {
+    pub robot_id: String,
+    pub session_id: String,
+    pub keyframe_id: u64,
+}
+
+/// The stream a keyframe belongs to: one robot's one SLAM session.
+#[derive(Debug, Clone, PartialEq, Eq, Hash, PartialOrd, Ord, Serialize, Deserialize)]
+pub struct SessionKey {
+    pub robot_id: String,
+    pub session_id: String,
+}
+
+impl KeyframeKey {
+    pub fn session(&self) -> SessionKey {
+        SessionKey {
+            robot_id: self.robot_id.clone(),
+            session_id: self.session_id.clone(),
+        }
+    }
+
+    pub fn in_session(&self, session: &SessionKey) -> bool {
+        self.robot_id == session.robot_id && self.session_id == session.session_id
+    }
+}
+
+/// Camera pose in its map: the camera-to-world transform `T_wc`
+/// (ORB-SLAM3's `GetPoseInverse()`), rotation as a unit quaternion.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+pub struct Pose {
+    /// Translation `(x, y, z)` in map units (metres for metric maps).
+    pub translation: [f64; 3],
+    /// Rotation quaternion `(w, x, y, z)`, unit length.
+    pub rotation: [f64; 4],
+}
+
+impl Default for Pose {
+    fn default() -> Self {
+        Pose {
+            translation: [0.0; 3],
+            rotation: [1.0, 0.0, 0.0, 0.0],
+        }
+    }
+}
+
+impl Pose {
+    pub fn to_isometry(&self) -> nalgebra::Isometry3<f64> {
+        let [w, x, y, z] = self.rotation;
+        let q = nalgebra::UnitQuaternion::from_quaternion(nalgebra::Quaternion::new(w, x, y, z));
+        let [tx, ty, tz] = self.translation;
+        nalgebra::Isometry3::from_parts(nalgebra::Translation3::new(tx, ty, tz), q)
+    }
+}
+
+/// One entry of a (truncated) scene-class distribution, e.g. Places365.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+pub struct SceneClass {
+    pub class_id: u32,
+    pub probability: f32,
+}
+
+/// An OCR string read inside an object's region.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct TextObservation {
+    pub text: String,
+    /// Recogniser confidence `p_u` in [0, 1].
+    pub confidence: f32,
+}
+
+/// A stable object seen in the keyframe.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct ObjectObservation {
+    /// Semantic class label, e.g. `building`, `sign`, `street_light`.
+    pub class_name: String,
+    /// Detector confidence `p` in [0, 1].
+    pub confidence: f32,
+    /// Centroid `(x, y)`, normalised to the image, each in [0, 1].
+    pub centroid: [f32; 2],
+    /// Area normalised by the image area, in [0, 1].
+    pub area: f32,
+    /// Text read on the object.
+    pub texts: Vec<TextObservation>,
+}
+
+/// What perception extracts from one image: the global descriptor `e`, the
+/// scene-class distribution `S` and the objects `O`.
+#[derive(Debug, Clone, PartialEq, Default, Serialize, Deserialize)]
+pub struct Features {
+    /// Global descriptor, L2-normalised.
+    pub descriptor: Vec<f32>,
+    /// Top entries of the scene-class distribution, highest first.
+    pub scene: Vec<SceneClass>,
+    pub objects: Vec<ObjectObservation>,
+}
+
+/// A semantic keyframe as stored.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct SemanticKeyframe {
+    pub key: KeyframeKey,
+    /// Source-frame id `f_i` (the frame the keyframe was made from).
+    pub frame_id: u64,
+    /// Timestamp `t_i` in seconds.
+    pub timestamp: f64,
+    /// Atlas map id `m_i` within the robot's session.
+    pub map_id: u64,
+    pub pose: Pose,
+    pub features: Features,
+}

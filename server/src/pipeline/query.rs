@@ -1,0 +1,237 @@
+//! One query, end to end over the index: resolve what the query is (sent
+//! features or a stored keyframe) and its temporal context, decide which
+//! stored keyframes are eligible, rank them with HuMem-VPR and select the
+//! candidates, with their evidence spelled out.
+//!
+//! It runs under the index's read lock on a blocking thread; it allocates
+//! only for the query's own history and the returned candidates.
+
+use std::cell::Cell;
+use std::time::Duration;
+
+use crate::api::validate::{InvalidField, QuerySpec};
+use crate::keyframe::{Features, KeyframeKey, Pose};
+use crate::store::Index;
+use crate::vpr::{
+    self, CandidateMeta, KeyframeMemory, ObjectMatch, QueryContext, QueryObservation, ScalHit,
+    Scope, TextMatch, VprParams,
+};
+
+/// Why a query cannot be answered.
+#[derive(Debug, thiserror::Error)]
+pub enum QueryError {
+    #[error(transparent)]
+    Invalid(#[from] InvalidField),
+    #[error("keyframe {} of robot {:?}, session {:?} is not stored, and the query sends no features", .0.keyframe_id, .0.robot_id, .0.session_id)]
+    NotStored(KeyframeKey),
+}
+
+/// A matched object pair, with its class.
+#[derive(Debug, Clone)]
+pub struct ObjectPair {
+    pub matched: ObjectMatch,
+    pub class_name: String,
+}
+
+/// A matched string pair, with the strings.
+#[derive(Debug, Clone)]
+pub struct TextPair {
+    pub matched: TextMatch,
+    pub query_text: String,
+    pub candidate_text: String,
+}
+
+/// A selected candidate and why.
+#[derive(Debug, Clone)]
+pub struct Candidate {
+    pub key: KeyframeKey,
+    pub frame_id: u64,
+    pub timestamp: f64,
+    pub map_id: u64,
+    pub pose: Pose,
+    /// Λ.
+    pub score: f32,
+    pub scene: ScalHit,
+    pub object_score: f32,
+    pub text_score: f32,
+    pub text_distinctiveness: f32,
+    pub corroboration: f32,
+    pub object_matches: Vec<ObjectPair>,
+    pub text_matches: Vec<TextPair>,
+}
+
+/// The answer to a query.
+#[derive(Debug, Clone, Default)]
+pub struct QueryOutcome {
+    pub candidates: Vec<Candidate>,
+    /// Stored keyframes that passed eligibility and scope.
+    pub eligible: u64,
+    /// Predecessor keyframes used for temporal context, most recent first.
+    pub used_predecessors: Vec<u64>,
+    /// Time per stage.
+    pub timings: Vec<(&'static str, Duration)>,
+}
+
+/// Runs a validated query against the index.
+pub fn run(
+    index: &Index,
+    params: &VprParams,
+    spec: &QuerySpec,
+) -> Result<QueryOutcome, QueryError> {
+    let stored_row = spec.keyframe_id.and_then(|keyframe_id| {
+        index.row_of(&KeyframeKey {
+            robot_id: spec.session.robot_id.clone(),
+            session_id: spec.session.session_id.clone(),
+            keyframe_id,
+        })
+    });
+    let current = match (&spec.features, stored_row) {
+        (Some(features), _) => features.clone(),
+        (None, Some(row)) => index.keyframe(row).features,
+        (None, None) => {
+            return Err(QueryError::NotStored(KeyframeKey {
+                robot_id: spec.session.robot_id.clone(),
+                session_id: spec.session.session_id.clone(),
+                keyframe_id: spec.keyframe_id.unwrap_or_default(),
+            }))
+        }
+    };
+    if index.dim() != 0 && current.descriptor.len() != index.dim() {
+        return Err(InvalidField {
+            field: "features.descriptor".into(),
+            reason: format!(
+                "has {} values but this store holds {}-value descriptors",
+                current.descriptor.len(),
+                index.dim()
+            ),
+        }
+        .into());
+    }
+    let stored_meta = stored_row.map(|row| index.meta(row));
+    let frame_id = spec
+        .frame_id
+        .or(stored_meta.map(|m| m.frame_id))
+        .ok_or_else(|| InvalidField {
+            field: "frame_id".into(),
+            reason: "required unless keyframe_id names a stored keyframe".into(),
+        })?;
+    let map_id = spec.map_id.or(stored_meta.map(|m| m.map_id));
+    let map_id = match (&spec.scope, map_id) {
+        (Scope::SameMap | Scope::OtherMaps, None) => {
+            return Err(InvalidField {
+                field: "map_id".into(),
+                reason: "required for SCOPE_SAME_MAP and SCOPE_OTHER_MAPS unless keyframe_id names a stored keyframe".into(),
+            }
+            .into())
+        }
+        (_, map_id) => map_id.unwrap_or_default(),
+    };
+
+    // Temporal context: the predecessors the client names, or else the
+    // stored predecessors of the query keyframe.
+    let depth = params.alpha.len().saturating_sub(1);
+    let predecessor_rows: Vec<usize> = if spec.predecessor_ids.is_empty() {
+        std::iter::successors(stored_row, |&row| index.predecessor(row))
+            .skip(1)
+            .take(depth)
+            .collect()
+    } else {
+        spec.predecessor_ids
+            .iter()
+            .filter_map(|&keyframe_id| {
+                index.row_of(&KeyframeKey {
+                    robot_id: spec.session.robot_id.clone(),
+                    session_id: spec.session.session_id.clone(),
+                    keyframe_id,
+                })
+            })
+            .take(depth)
+            .collect()
+    };
+    let predecessors: Vec<Features> = predecessor_rows
+        .iter()
+        .map(|&row| index.keyframe(row).features)
+        .collect();
+    let mut history = vec![&current];
+    history.extend(predecessors.iter());
+
+    let context = QueryContext {
+        session: spec.session.clone(),
+        keyframe_id: spec.keyframe_id,
+        frame_id,
+        map_id,
+        min_frame_gap: spec.min_frame_gap,
+        scope: spec.scope.clone(),
+    };
+    let eligible_count = Cell::new(0u64);
+    let eligible = |row: usize| {
+        let meta = index.meta(row);
+        let ok = vpr::is_eligible(
+            &context,
+            &CandidateMeta {
+                key: &meta.key,
+                frame_id: meta.frame_id,
+                map_id: meta.map_id,
+            },
+        );
+        eligible_count.set(eligible_count.get() + u64::from(ok));
+        ok
+    };
+
+    let query = QueryObservation { history };
+    let (ranked, timings) = vpr::rank_timed(params, spec.layers, &query, index, &eligible);
+    let selected = vpr::select(ranked, spec.threshold, spec.top_n);
+
+    let candidates = selected
+        .into_iter()
+        .map(|r| {
+            let meta = index.meta(r.row);
+            let cand_objects = index.objects(r.row);
+            Candidate {
+                key: meta.key.clone(),
+                frame_id: meta.frame_id,
+                timestamp: meta.timestamp,
+                map_id: meta.map_id,
+                pose: meta.pose,
+                score: r.score,
+                scene: r.scene,
+                object_score: r.objects.score,
+                text_score: r.text.score,
+                text_distinctiveness: r.text.evidence_weight,
+                corroboration: r.corroboration,
+                object_matches: r
+                    .objects
+                    .matches
+                    .into_iter()
+                    .map(|m| ObjectPair {
+                        class_name: current.objects[m.query_object].class_name.clone(),
+                        matched: m,
+                    })
+                    .collect(),
+                text_matches: r
+                    .text
+                    .matches
+                    .into_iter()
+                    .map(|m| TextPair {
+                        query_text: current.objects[m.query_object].texts[m.query_text]
+                            .text
+                            .clone(),
+                        candidate_text: cand_objects[m.candidate_object].texts[m.candidate_text]
+                            .text
+                            .clone(),
+                        matched: m,
+                    })
+                    .collect(),
+            }
+        })
+        .collect();
+    Ok(QueryOutcome {
+        candidates,
+        eligible: eligible_count.get(),
+        used_predecessors: predecessor_rows
+            .iter()
+            .map(|&row| index.meta(row).key.keyframe_id)
+            .collect(),
+        timings: timings.stages().to_vec(),
+    })
+}

@@ -1,0 +1,101 @@
+//! `humem serve`: opens the store, starts the gRPC server with the standard
+//! health and reflection services, and shuts down cleanly on SIGINT/SIGTERM
+//! (stop accepting, let in-flight requests finish, flush the store).
+
+use anyhow::Context;
+use tokio::net::TcpListener;
+use tokio_stream::wrappers::TcpListenerStream;
+
+use crate::api::validate::Limits;
+use crate::api::PlaceRecognitionService;
+use crate::config::Config;
+use crate::proto::place_recognition_server::PlaceRecognitionServer;
+use crate::store::Store;
+
+/// Runs the service until a shutdown signal.
+pub async fn serve(config: Config) -> anyhow::Result<()> {
+    std::fs::create_dir_all(&config.store.data_dir).with_context(|| {
+        format!(
+            "creating data directory {}",
+            config.store.data_dir.display()
+        )
+    })?;
+    let store = Store::open(
+        &config.store.data_dir,
+        config.store.descriptor_dim,
+        config.store.write_queue,
+    )
+    .with_context(|| format!("opening the store in {}", config.store.data_dir.display()))?;
+
+    let limits = Limits {
+        scene_top_k: config.store.scene_top_k,
+        min_frame_gap: config.query.min_frame_gap,
+        threshold: config.vpr.tau_s,
+        top_n: config.vpr.max_candidates,
+    };
+    let service = PlaceRecognitionService::new(store.clone(), config.vpr.clone(), limits);
+    let max = config.server.max_message_bytes;
+    let api = PlaceRecognitionServer::new(service)
+        .max_decoding_message_size(max)
+        .max_encoding_message_size(max);
+
+    let (health, health_service) = tonic_health::server::health_reporter();
+    health
+        .set_serving::<PlaceRecognitionServer<PlaceRecognitionService>>()
+        .await;
+    let reflection = tonic_reflection::server::Builder::configure()
+        .register_encoded_file_descriptor_set(crate::proto::FILE_DESCRIPTOR_SET)
+        .register_encoded_file_descriptor_set(tonic_health::pb::FILE_DESCRIPTOR_SET)
+        .build_v1()
+        .context("building the reflection service")?;
+
+    let listener = TcpListener::bind(config.server.listen)
+        .await
+        .with_context(|| format!("binding {}", config.server.listen))?;
+    let local = listener.local_addr()?;
+    tracing::info!(%local, data_dir = %config.store.data_dir.display(), "humem serving");
+    // One plain line on stdout, for scripts and tests that asked for port 0.
+    println!("humem listening on {local}");
+
+    tonic::transport::Server::builder()
+        .add_service(health_service)
+        .add_service(reflection)
+        .add_service(api)
+        .serve_with_incoming_shutdown(TcpListenerStream::new(listener), async move {
+            shutdown_signal().await;
+            tracing::info!("shutdown requested: finishing in-flight requests");
+            health
+                .set_not_serving::<PlaceRecognitionServer<PlaceRecognitionService>>()
+                .await;
+        })
+        .await
+        .context("running the gRPC server")?;
+
+    store.flush().context("flushing the store at shutdown")?;
+    tracing::info!("humem stopped");
+    Ok(())
+}
+
+async fn shutdown_signal() {
+    let ctrl_c = async {
+        let _ = tokio::signal::ctrl_c().await;
+    };
+    #[cfg(unix)]
+    let term = async {
+        match tokio::signal::unix::signal(tokio::signal::unix::SignalKind::terminate()) {
+            Ok(mut s) => {
+                s.recv().await;
+            }
+            Err(e) => {
+                tracing::warn!(error = %e, "cannot listen for SIGTERM");
+                std::future::pending::<()>().await
+            }
+        }
+    };
+    #[cfg(not(unix))]
+    let term = std::future::pending::<()>();
+    tokio::select! {
+        _ = ctrl_c => {},
+        _ = term => {},
+    }
+}

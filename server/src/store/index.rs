@@ -1,0 +1,424 @@
+//! The in-memory search index over the stored keyframes.
+//!
+//! It is rebuilt from sled at start and kept in step with it by the writer.
+//! Descriptors live in one contiguous row-major matrix, because SCAL is a
+//! scan over all of them and is bound by memory bandwidth; everything else
+//! about a keyframe lives in a row-aligned table. Erasing swaps the last row
+//! into the hole, so rows stay dense.
+//!
+//! Each row also knows its predecessor: the keyframe before it (by keyframe
+//! id) in the same robot, session and map, which is what SCAL's temporal
+//! context compares. Predecessor links are maintained on every change so a
+//! query never has to look them up in a tree.
+
+use std::collections::{BTreeMap, HashMap, HashSet};
+
+use crate::keyframe::{
+    KeyframeKey, ObjectObservation, Pose, SceneClass, SemanticKeyframe, SessionKey,
+};
+use crate::vpr::{self, DescriptorMatrix, KeyframeMemory};
+
+/// A map: (robot, session, map id).
+#[derive(Debug, Clone, PartialEq, Eq, Hash, PartialOrd, Ord)]
+pub struct MapKey {
+    pub session: SessionKey,
+    pub map_id: u64,
+}
+
+/// Everything about a stored keyframe except its descriptor (which is a row
+/// of the matrix).
+#[derive(Debug, Clone)]
+pub struct RowMeta {
+    pub key: KeyframeKey,
+    pub frame_id: u64,
+    pub timestamp: f64,
+    pub map_id: u64,
+    pub pose: Pose,
+    pub scene: Vec<SceneClass>,
+    pub objects: Vec<ObjectObservation>,
+    /// Row of the previous keyframe of the same track, if stored.
+    prev: Option<usize>,
+}
+
+impl RowMeta {
+    pub fn map_key(&self) -> MapKey {
+        MapKey {
+            session: self.key.session(),
+            map_id: self.map_id,
+        }
+    }
+}
+
+/// The in-memory index.
+#[derive(Debug)]
+pub struct Index {
+    matrix: DescriptorMatrix,
+    rows: Vec<RowMeta>,
+    by_key: HashMap<KeyframeKey, usize>,
+    /// Keyframe id → row, per map: the temporal tracks.
+    tracks: HashMap<MapKey, BTreeMap<u64, usize>>,
+    /// Number of keyframes each normalised OCR string appears in.
+    text_df: HashMap<String, u32>,
+}
+
+impl Index {
+    /// An empty index for descriptors of length `dim` (0 while unknown).
+    pub fn new(dim: usize) -> Self {
+        Index {
+            matrix: DescriptorMatrix::new(dim),
+            rows: Vec::new(),
+            by_key: HashMap::new(),
+            tracks: HashMap::new(),
+            text_df: HashMap::new(),
+        }
+    }
+
+    pub fn len(&self) -> usize {
+        self.rows.len()
+    }
+
+    pub fn is_empty(&self) -> bool {
+        self.rows.is_empty()
+    }
+
+    /// Descriptor length of the stored keyframes (0 while unknown).
+    pub fn dim(&self) -> usize {
+        self.matrix.dim()
+    }
+
+    pub fn row_of(&self, key: &KeyframeKey) -> Option<usize> {
+        self.by_key.get(key).copied()
+    }
+
+    pub fn meta(&self, row: usize) -> &RowMeta {
+        &self.rows[row]
+    }
+
+    pub fn descriptor(&self, row: usize) -> &[f32] {
+        self.matrix.row(row)
+    }
+
+    /// The whole keyframe of a row, as stored.
+    pub fn keyframe(&self, row: usize) -> SemanticKeyframe {
+        let meta = &self.rows[row];
+        SemanticKeyframe {
+            key: meta.key.clone(),
+            frame_id: meta.frame_id,
+            timestamp: meta.timestamp,
+            map_id: meta.map_id,
+            pose: meta.pose,
+            features: crate::keyframe::Features {
+                descriptor: self.matrix.row(row).to_vec(),
+                scene: meta.scene.clone(),
+                objects: meta.objects.clone(),
+            },
+        }
+    }
+
+    /// Rows of all keyframes of a session.
+    pub fn session_rows(&self, session: &SessionKey) -> Vec<usize> {
+        self.tracks
+            .iter()
+            .filter(|(map, _)| &map.session == session)
+            .flat_map(|(_, track)| track.values().copied())
+            .collect()
+    }
+
+    /// Rows of all keyframes of a map.
+    pub fn map_rows(&self, map: &MapKey) -> Vec<usize> {
+        self.tracks
+            .get(map)
+            .map(|track| track.values().copied().collect())
+            .unwrap_or_default()
+    }
+
+    /// Keyframe counts per map, sorted by map.
+    pub fn map_counts(&self) -> Vec<(MapKey, usize)> {
+        let mut counts: Vec<_> = self
+            .tracks
+            .iter()
+            .map(|(map, track)| (map.clone(), track.len()))
+            .collect();
+        counts.sort();
+        counts
+    }
+
+    /// Stores a keyframe, replacing the one with the same key. Returns true if
+    /// one was replaced. The descriptor must have the index's length (the
+    /// first keyframe of an empty index fixes it when it is 0).
+    pub fn upsert(&mut self, keyframe: SemanticKeyframe) -> bool {
+        let replaced = self.remove(&keyframe.key);
+        if self.matrix.dim() == 0 && self.matrix.is_empty() {
+            self.matrix = DescriptorMatrix::new(keyframe.features.descriptor.len());
+        }
+        let row = self.matrix.push(&keyframe.features.descriptor);
+        debug_assert_eq!(row, self.rows.len());
+        for text in distinct_texts(&keyframe.features.objects) {
+            *self.text_df.entry(text).or_insert(0) += 1;
+        }
+        self.by_key.insert(keyframe.key.clone(), row);
+        self.rows.push(RowMeta {
+            key: keyframe.key,
+            frame_id: keyframe.frame_id,
+            timestamp: keyframe.timestamp,
+            map_id: keyframe.map_id,
+            pose: keyframe.pose,
+            scene: keyframe.features.scene,
+            objects: keyframe.features.objects,
+            prev: None,
+        });
+        self.link(row);
+        replaced
+    }
+
+    /// Removes a keyframe; returns true if it was stored.
+    pub fn remove(&mut self, key: &KeyframeKey) -> bool {
+        let Some(row) = self.by_key.remove(key) else {
+            return false;
+        };
+        self.unlink(row);
+        for text in distinct_texts(&self.rows[row].objects) {
+            if let Some(count) = self.text_df.get_mut(&text) {
+                *count -= 1;
+                if *count == 0 {
+                    self.text_df.remove(&text);
+                }
+            }
+        }
+        // Move the last row into the hole and repoint everything that
+        // referred to the last row.
+        let last = self.rows.len() - 1;
+        self.matrix.swap_remove(row);
+        self.rows.swap_remove(row);
+        if row != last {
+            let moved = &self.rows[row];
+            self.by_key.insert(moved.key.clone(), row);
+            let map = moved.map_key();
+            let id = moved.key.keyframe_id;
+            let track = self.tracks.get_mut(&map).expect("moved row has a track");
+            track.insert(id, row);
+            if let Some((_, &next)) = track.range(id + 1..).next() {
+                self.rows[next].prev = Some(row);
+            }
+        }
+        true
+    }
+
+    /// Moves a keyframe to a corrected pose and, optionally, another map.
+    /// Returns false if the keyframe is not stored.
+    pub fn update_pose(&mut self, key: &KeyframeKey, pose: Pose, map_id: Option<u64>) -> bool {
+        let Some(row) = self.row_of(key) else {
+            return false;
+        };
+        self.rows[row].pose = pose;
+        if let Some(map_id) = map_id {
+            if map_id != self.rows[row].map_id {
+                self.unlink(row);
+                self.rows[row].map_id = map_id;
+                self.link(row);
+            }
+        }
+        true
+    }
+
+    /// Inserts `row` into its map's track and fixes the predecessor links of
+    /// it and of its successor.
+    fn link(&mut self, row: usize) {
+        let map = self.rows[row].map_key();
+        let id = self.rows[row].key.keyframe_id;
+        let track = self.tracks.entry(map).or_default();
+        track.insert(id, row);
+        let prev = track.range(..id).next_back().map(|(_, &r)| r);
+        let next = track.range(id + 1..).next().map(|(_, &r)| r);
+        self.rows[row].prev = prev;
+        if let Some(next) = next {
+            self.rows[next].prev = Some(row);
+        }
+    }
+
+    /// Takes `row` out of its map's track, joining its neighbours.
+    fn unlink(&mut self, row: usize) {
+        let map = self.rows[row].map_key();
+        let id = self.rows[row].key.keyframe_id;
+        let prev = self.rows[row].prev;
+        let Some(track) = self.tracks.get_mut(&map) else {
+            return;
+        };
+        track.remove(&id);
+        let next = track.range(id + 1..).next().map(|(_, &r)| r);
+        if track.is_empty() {
+            self.tracks.remove(&map);
+        }
+        if let Some(next) = next {
+            self.rows[next].prev = prev;
+        }
+        self.rows[row].prev = None;
+    }
+}
+
+/// The distinct normalised strings read on a keyframe's objects: each counts
+/// once per keyframe in the document frequency.
+fn distinct_texts(objects: &[ObjectObservation]) -> HashSet<String> {
+    objects
+        .iter()
+        .flat_map(|o| o.texts.iter())
+        .map(|t| vpr::text::normalize(&t.text))
+        .filter(|t| !t.is_empty())
+        .collect()
+}
+
+impl KeyframeMemory for Index {
+    fn descriptors(&self) -> &DescriptorMatrix {
+        &self.matrix
+    }
+
+    fn scene(&self, row: usize) -> &[SceneClass] {
+        &self.rows[row].scene
+    }
+
+    fn predecessor(&self, row: usize) -> Option<usize> {
+        self.rows[row].prev
+    }
+
+    fn objects(&self, row: usize) -> &[ObjectObservation] {
+        &self.rows[row].objects
+    }
+
+    fn text_document_frequency(&self, normalized: &str) -> u32 {
+        self.text_df.get(normalized).copied().unwrap_or(0)
+    }
+
+    fn keyframe_count(&self) -> u32 {
+        u32::try_from(self.rows.len()).unwrap_or(u32::MAX)
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::keyframe::{Features, TextObservation};
+
+    fn kf(session: &str, id: u64, map: u64, text: &str) -> SemanticKeyframe {
+        SemanticKeyframe {
+            key: KeyframeKey {
+                robot_id: "r".into(),
+                session_id: session.into(),
+                keyframe_id: id,
+            },
+            frame_id: id * 10,
+            timestamp: id as f64,
+            map_id: map,
+            pose: Pose::default(),
+            features: Features {
+                descriptor: vec![id as f32, 1.0],
+                scene: vec![],
+                objects: vec![ObjectObservation {
+                    class_name: "sign".into(),
+                    confidence: 1.0,
+                    centroid: [0.5, 0.5],
+                    area: 0.1,
+                    texts: vec![TextObservation {
+                        text: text.into(),
+                        confidence: 1.0,
+                    }],
+                }],
+            },
+        }
+    }
+
+    fn prev_id(index: &Index, session: &str, id: u64) -> Option<u64> {
+        let key = KeyframeKey {
+            robot_id: "r".into(),
+            session_id: session.into(),
+            keyframe_id: id,
+        };
+        let row = index.row_of(&key)?;
+        index
+            .predecessor(row)
+            .map(|r| index.meta(r).key.keyframe_id)
+    }
+
+    /// Checks every invariant against a from-scratch recomputation.
+    fn check(index: &Index) {
+        assert_eq!(index.matrix.len(), index.rows.len());
+        assert_eq!(index.by_key.len(), index.rows.len());
+        for (row, meta) in index.rows.iter().enumerate() {
+            assert_eq!(index.by_key[&meta.key], row);
+            assert_eq!(index.matrix.row(row)[0], meta.key.keyframe_id as f32);
+            let expected_prev = index
+                .rows
+                .iter()
+                .enumerate()
+                .filter(|(_, m)| {
+                    m.map_key() == meta.map_key() && m.key.keyframe_id < meta.key.keyframe_id
+                })
+                .max_by_key(|(_, m)| m.key.keyframe_id)
+                .map(|(r, _)| r);
+            assert_eq!(meta.prev, expected_prev, "prev of {:?}", meta.key);
+        }
+        let tracked: usize = index.tracks.values().map(|t| t.len()).sum();
+        assert_eq!(tracked, index.rows.len());
+    }
+
+    #[test]
+    fn predecessors_follow_keyframe_order_within_a_map() {
+        let mut index = Index::new(0);
+        for id in [3, 1, 2, 5] {
+            index.upsert(kf("s", id, 0, "x"));
+        }
+        index.upsert(kf("s", 4, 1, "x"));
+        check(&index);
+        assert_eq!(prev_id(&index, "s", 1), None);
+        assert_eq!(prev_id(&index, "s", 2), Some(1));
+        assert_eq!(prev_id(&index, "s", 3), Some(2));
+        assert_eq!(prev_id(&index, "s", 5), Some(3));
+        assert_eq!(prev_id(&index, "s", 4), None, "other map");
+    }
+
+    #[test]
+    fn removal_and_swaps_keep_links_right() {
+        let mut index = Index::new(0);
+        for id in 0..20 {
+            index.upsert(kf(if id % 2 == 0 { "a" } else { "b" }, id, id % 3, "x"));
+        }
+        for id in [0, 7, 19, 10, 4] {
+            let key = index
+                .rows
+                .iter()
+                .find(|m| m.key.keyframe_id == id)
+                .unwrap()
+                .key
+                .clone();
+            assert!(index.remove(&key));
+            assert!(!index.remove(&key));
+            check(&index);
+        }
+        let key = index.rows[3].key.clone();
+        assert!(index.update_pose(&key, Pose::default(), Some(9)));
+        check(&index);
+        assert_eq!(index.len(), 15);
+    }
+
+    #[test]
+    fn replacing_a_keyframe_keeps_one_row() {
+        let mut index = Index::new(0);
+        assert!(!index.upsert(kf("s", 1, 0, "x")));
+        assert!(index.upsert(kf("s", 1, 0, "y")));
+        assert_eq!(index.len(), 1);
+        check(&index);
+    }
+
+    #[test]
+    fn document_frequency_counts_keyframes() {
+        let mut index = Index::new(0);
+        index.upsert(kf("s", 1, 0, "Exit 12"));
+        index.upsert(kf("s", 2, 0, "EXIT-12"));
+        index.upsert(kf("s", 3, 0, "Room 5"));
+        let exit = vpr::text::normalize("exit 12");
+        assert_eq!(index.text_document_frequency(&exit), 2);
+        let key = index.rows[0].key.clone();
+        index.remove(&key);
+        assert_eq!(index.text_document_frequency(&exit), 1);
+        assert_eq!(index.keyframe_count(), 2);
+    }
+}

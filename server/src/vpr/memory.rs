@@ -1,0 +1,141 @@
+//! The view of the keyframe store that ranking needs.
+//!
+//! Ranking reads rows of an index, not the store itself: the descriptor
+//! matrix, the per-row scene distribution, objects and temporal predecessor,
+//! and the document frequencies used for text rarity. Expressing that as a
+//! small object-safe trait keeps `vpr/` independent of `store/` (whose
+//! in-memory index implements it) and lets tests and benchmarks use the plain
+//! [`VecMemory`] below.
+
+use crate::keyframe::{Features, ObjectObservation, SceneClass};
+use crate::vpr::matrix::DescriptorMatrix;
+use crate::vpr::text::normalize;
+
+/// Read access to the indexed keyframes, addressed by row.
+pub trait KeyframeMemory {
+    /// The descriptors, one row per stored keyframe.
+    fn descriptors(&self) -> &DescriptorMatrix;
+    /// Scene-class distribution of `row` (sparse top entries).
+    fn scene(&self, row: usize) -> &[SceneClass];
+    /// Row of the keyframe that precedes `row` in its robot/session/map
+    /// track, if stored.
+    fn predecessor(&self, row: usize) -> Option<usize>;
+    /// Objects of `row`.
+    fn objects(&self, row: usize) -> &[ObjectObservation];
+    /// Number of stored keyframes whose text contains this normalised string
+    /// (document frequency).
+    fn text_document_frequency(&self, normalized: &str) -> u32;
+    /// Number of stored keyframes.
+    fn keyframe_count(&self) -> u32;
+}
+
+/// A plain `Vec`-backed [`KeyframeMemory`] for tests and benchmarks.
+#[derive(Debug, Clone, Default)]
+pub struct VecMemory {
+    descriptors: DescriptorMatrix,
+    features: Vec<Features>,
+    predecessors: Vec<Option<usize>>,
+}
+
+impl VecMemory {
+    /// An empty memory for descriptors of dimension `dim`.
+    pub fn new(dim: usize) -> Self {
+        VecMemory {
+            descriptors: DescriptorMatrix::new(dim),
+            features: Vec::new(),
+            predecessors: Vec::new(),
+        }
+    }
+
+    /// Appends a keyframe whose track predecessor is `predecessor` and
+    /// returns its row. Panics if the descriptor has the wrong dimension.
+    pub fn push(&mut self, features: Features, predecessor: Option<usize>) -> usize {
+        let row = self.descriptors.push(&features.descriptor);
+        self.features.push(features);
+        self.predecessors.push(predecessor);
+        row
+    }
+
+    /// The features stored at `row`.
+    pub fn features(&self, row: usize) -> &Features {
+        &self.features[row]
+    }
+}
+
+impl KeyframeMemory for VecMemory {
+    fn descriptors(&self) -> &DescriptorMatrix {
+        &self.descriptors
+    }
+
+    fn scene(&self, row: usize) -> &[SceneClass] {
+        &self.features[row].scene
+    }
+
+    fn predecessor(&self, row: usize) -> Option<usize> {
+        self.predecessors[row]
+    }
+
+    fn objects(&self, row: usize) -> &[ObjectObservation] {
+        &self.features[row].objects
+    }
+
+    fn text_document_frequency(&self, normalized: &str) -> u32 {
+        let count = self
+            .features
+            .iter()
+            .filter(|f| {
+                f.objects
+                    .iter()
+                    .flat_map(|o| &o.texts)
+                    .any(|t| normalize(&t.text) == normalized)
+            })
+            .count();
+        u32::try_from(count).unwrap_or(u32::MAX)
+    }
+
+    fn keyframe_count(&self) -> u32 {
+        u32::try_from(self.features.len()).unwrap_or(u32::MAX)
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::keyframe::TextObservation;
+
+    fn with_texts(texts: &[&str]) -> Features {
+        Features {
+            descriptor: vec![1.0, 0.0],
+            scene: vec![],
+            objects: vec![ObjectObservation {
+                class_name: "sign".into(),
+                confidence: 1.0,
+                centroid: [0.5, 0.5],
+                area: 0.1,
+                texts: texts
+                    .iter()
+                    .map(|t| TextObservation {
+                        text: t.to_string(),
+                        confidence: 1.0,
+                    })
+                    .collect(),
+            }],
+        }
+    }
+
+    #[test]
+    fn vec_memory_counts_documents_not_occurrences() {
+        let mut m = VecMemory::new(2);
+        let a = m.push(with_texts(&["EXIT", "exit!"]), None);
+        let b = m.push(with_texts(&["Exit", "B-214"]), Some(a));
+        m.push(with_texts(&[]), Some(b));
+        assert_eq!(m.keyframe_count(), 3);
+        assert_eq!(m.text_document_frequency("exit"), 2);
+        assert_eq!(m.text_document_frequency("b 214"), 1);
+        assert_eq!(m.text_document_frequency("nothing"), 0);
+        assert_eq!(m.predecessor(b), Some(a));
+        assert_eq!(m.predecessor(a), None);
+        assert_eq!(m.descriptors().len(), 3);
+        assert_eq!(m.objects(b)[0].texts.len(), 2);
+    }
+}

@@ -1,0 +1,54 @@
+//! HuMem-VPR scoring: ranks stored semantic keyframes against a query.
+//!
+//! Everything here is a pure function over plain data (no I/O, no models, no
+//! server), so the scoring can be unit-tested and benchmarked on its own. The
+//! layers follow the paper and `DESIGN.md`:
+//!
+//! - [`scal`]: global-descriptor cosine, scene modulation and temporal
+//!   context (the scene-primary hypothesis), over the whole eligible store;
+//! - [`osrl`](mod@osrl): object layout, per-class Hungarian assignment, on the top K;
+//! - [`ogtl`](mod@ogtl): OCR text grounded on spatially compatible objects, on the top K;
+//! - [`fusion`]: bounded corroboration `B` and the fused score `Λ`;
+//! - [`rank`](mod@rank): the orchestration of one query and the final selection.
+//!
+//! Supporting modules: [`params`] (every constant, configurable),
+//! [`eligibility`] (which stored keyframes may be proposed), [`matrix`] (the
+//! contiguous descriptor matrix the scan runs over), [`memory`] (the view of
+//! the store that ranking needs), [`text`] (string similarity and
+//! distinctiveness) and `assignment` (the Hungarian solver adapter).
+
+mod assignment;
+pub mod eligibility;
+pub mod fusion;
+pub mod matrix;
+pub mod memory;
+pub mod ogtl;
+pub mod osrl;
+pub mod params;
+pub mod rank;
+pub mod scal;
+pub mod text;
+
+#[cfg(test)]
+mod testing;
+
+pub use eligibility::{is_eligible, CandidateMeta, MapRef, QueryContext, Scope};
+pub use fusion::{corroboration, fuse};
+pub use matrix::{dot, DescriptorMatrix};
+pub use memory::{KeyframeMemory, VecMemory};
+pub use ogtl::{ogtl, text_profile, text_profile_in, OgtlResult, TextMatch, TextProfile};
+pub use osrl::{object_affinity, osrl, spatial_kernel, ObjectMatch, OsrlResult};
+pub use params::{Layers, VprParams};
+pub use rank::{rank, rank_timed, select, QueryObservation, RankedCandidate, StageTimes};
+pub use scal::{cosine, modulated, scal_scores, scene_compatibility, ScalHit, ScalQuery};
+pub use text::{distinctiveness, string_similarity};
+
+/// `clip(x, 0, 1)`, with NaN mapped to 0 and −0 to +0 so that scores always
+/// order sensibly.
+pub(crate) fn clip01(x: f32) -> f32 {
+    if x > 0.0 {
+        x.min(1.0)
+    } else {
+        0.0
+    }
+}

@@ -1,0 +1,262 @@
+//! Every HuMem-VPR constant, with the paper's values as defaults.
+//!
+//! The parameters are one plain, serde-(de)serialisable struct so that the
+//! service configuration can override any of them (unknown keys are rejected,
+//! missing keys take the paper's value), and [`VprParams::validate`] checks
+//! the ranges once at load time so the scoring code can trust them. Which
+//! corroborating layers run is a separate value, [`Layers`]: the paper's
+//! ablations are configurations, not code branches.
+
+use std::collections::BTreeMap;
+
+use serde::{Deserialize, Serialize};
+
+/// Tunable constants of the scoring (defaults from the paper and `DESIGN.md`).
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(default, deny_unknown_fields)]
+pub struct VprParams {
+    /// `λ_c`, strength of the scene-class modulation of `s_e`.
+    pub lambda_c: f32,
+    /// `α`, temporal weights of the current observation and its two predecessors.
+    pub alpha: [f32; 3],
+    /// `K`, number of SCAL candidates passed to OSRL and OGTL.
+    pub top_k: usize,
+    /// `λ_a`, weight of the area difference in the layout distance `d²`.
+    pub lambda_a: f32,
+    /// `σ_m`, width of the Gaussian spatial kernel `G`.
+    pub sigma_m: f32,
+    /// `τ_g`, minimum `G` for two objects' texts to be compared.
+    pub tau_g: f32,
+    /// `g_o`, gain of the object evidence in `B`.
+    pub g_o: f32,
+    /// `g_t`, gain of the text evidence in `B`.
+    pub g_t: f32,
+    /// `τ_s`, selection threshold on `Λ` (strict).
+    pub tau_s: f32,
+    /// Maximum number of selected candidates.
+    pub max_candidates: usize,
+    /// `ω_r`, importance of semantic class `r` in `S_o`.
+    pub class_weights: BTreeMap<String, f32>,
+    /// `ω_r` of classes not listed in `class_weights`.
+    pub default_class_weight: f32,
+    /// Lower-case single words that make a string generic (near-zero
+    /// distinctiveness) when every token of it is one of them.
+    pub generic_words: Vec<String>,
+}
+
+/// Common sign words that say nothing about which place this is.
+const GENERIC_WORDS: &[&str] = &[
+    "exit", "open", "closed", "parking", "stop", "entrance", "enter", "push", "pull", "toilet",
+    "toilets", "wc", "sale", "welcome", "no", "in", "out", "the", "and", "of", "to", "for", "on",
+    "off", "way", "one", "only", "info", "keep", "left", "right", "caution", "danger", "private",
+    "police", "taxi",
+];
+
+impl Default for VprParams {
+    fn default() -> Self {
+        VprParams {
+            lambda_c: 0.10,
+            alpha: [0.5, 0.3, 0.2],
+            top_k: 25,
+            lambda_a: 1.0,
+            sigma_m: 0.25,
+            tau_g: 0.6,
+            g_o: 0.15,
+            g_t: 0.25,
+            tau_s: 0.70,
+            max_candidates: 5,
+            class_weights: BTreeMap::new(),
+            default_class_weight: 1.0,
+            generic_words: GENERIC_WORDS.iter().map(|w| w.to_string()).collect(),
+        }
+    }
+}
+
+impl VprParams {
+    /// `ω_r`: the configured weight of `class`, or `default_class_weight`.
+    pub fn class_weight(&self, class: &str) -> f32 {
+        self.class_weights
+            .get(class)
+            .copied()
+            .unwrap_or(self.default_class_weight)
+    }
+
+    /// Whether `token` (already normalised) is one of the generic words.
+    pub fn is_generic_word(&self, token: &str) -> bool {
+        self.generic_words.iter().any(|w| w == token)
+    }
+
+    /// Checks every range; the error message names the offending field.
+    pub fn validate(&self) -> Result<(), String> {
+        fn finite_in(name: &str, v: f32, lo: f32, hi: f32) -> Result<(), String> {
+            if v.is_finite() && v >= lo && v <= hi {
+                Ok(())
+            } else {
+                Err(format!("{name} must be in [{lo}, {hi}], got {v}"))
+            }
+        }
+        fn non_negative(name: &str, v: f32) -> Result<(), String> {
+            finite_in(name, v, 0.0, f32::MAX)
+        }
+
+        non_negative("lambda_c", self.lambda_c)?;
+        for (j, a) in self.alpha.iter().enumerate() {
+            non_negative(&format!("alpha[{j}]"), *a)?;
+        }
+        // S_s renormalises the α actually used; the current observation is
+        // always used, so it must carry weight or the denominator can be 0.
+        if self.alpha[0] <= 0.0 {
+            return Err(format!(
+                "alpha[0] must be > 0 (the current observation always counts), got {}",
+                self.alpha[0]
+            ));
+        }
+        if self.top_k == 0 {
+            return Err("top_k must be >= 1".to_string());
+        }
+        non_negative("lambda_a", self.lambda_a)?;
+        if !(self.sigma_m.is_finite() && self.sigma_m > 0.0) {
+            return Err(format!("sigma_m must be > 0, got {}", self.sigma_m));
+        }
+        finite_in("tau_g", self.tau_g, 0.0, 1.0)?;
+        non_negative("g_o", self.g_o)?;
+        non_negative("g_t", self.g_t)?;
+        finite_in("tau_s", self.tau_s, 0.0, 1.0)?;
+        if self.max_candidates == 0 {
+            return Err("max_candidates must be >= 1".to_string());
+        }
+        for (class, w) in &self.class_weights {
+            non_negative(&format!("class_weights[{class}]"), *w)?;
+        }
+        non_negative("default_class_weight", self.default_class_weight)?;
+        for w in &self.generic_words {
+            let ok = !w.is_empty() && w.chars().all(|c| c.is_alphanumeric() && !c.is_uppercase());
+            if !ok {
+                return Err(format!(
+                    "generic_words must be single lower-case alphanumeric words, got {w:?}"
+                ));
+            }
+        }
+        Ok(())
+    }
+}
+
+/// Which corroborating layers run (SCAL always runs). Ablations are
+/// configurations: a layer that is off contributes 0 to `B`.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct Layers {
+    /// Object-spatial reasoning (`S_o`).
+    pub osrl: bool,
+    /// Object-grounded text (`S_t`, `E_t`); objects still gate it.
+    pub ogtl: bool,
+}
+
+impl Layers {
+    /// Scene context only.
+    pub const SCAL: Layers = Layers {
+        osrl: false,
+        ogtl: false,
+    };
+    /// Scene context and object layout.
+    pub const SCAL_OSRL: Layers = Layers {
+        osrl: true,
+        ogtl: false,
+    };
+    /// Scene context and grounded text.
+    pub const SCAL_OGTL: Layers = Layers {
+        osrl: false,
+        ogtl: true,
+    };
+    /// All three layers.
+    pub const FULL: Layers = Layers {
+        osrl: true,
+        ogtl: true,
+    };
+}
+
+impl Default for Layers {
+    fn default() -> Self {
+        Layers::FULL
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn defaults_are_the_paper_constants_and_valid() {
+        let p = VprParams::default();
+        assert_eq!(p.lambda_c, 0.10);
+        assert_eq!(p.alpha, [0.5, 0.3, 0.2]);
+        assert_eq!(p.top_k, 25);
+        assert_eq!(p.lambda_a, 1.0);
+        assert_eq!(p.sigma_m, 0.25);
+        assert_eq!(p.tau_g, 0.6);
+        assert_eq!(p.g_o, 0.15);
+        assert_eq!(p.g_t, 0.25);
+        assert_eq!(p.tau_s, 0.70);
+        assert_eq!(p.max_candidates, 5);
+        assert!(p.is_generic_word("exit"));
+        assert!(!p.is_generic_word("b214"));
+        assert_eq!(p.validate(), Ok(()));
+    }
+
+    #[test]
+    fn class_weight_falls_back_to_default() {
+        let mut p = VprParams::default();
+        p.class_weights.insert("building".into(), 2.0);
+        p.default_class_weight = 0.5;
+        assert_eq!(p.class_weight("building"), 2.0);
+        assert_eq!(p.class_weight("fence"), 0.5);
+    }
+
+    type Mutation = Box<dyn Fn(&mut VprParams)>;
+
+    #[test]
+    fn validate_names_the_field() {
+        let cases: Vec<(&str, Mutation)> = vec![
+            ("lambda_c", Box::new(|p| p.lambda_c = -0.1)),
+            ("alpha[1]", Box::new(|p| p.alpha[1] = -1.0)),
+            ("alpha[0]", Box::new(|p| p.alpha = [0.0, 0.5, 0.5])),
+            ("top_k", Box::new(|p| p.top_k = 0)),
+            ("lambda_a", Box::new(|p| p.lambda_a = f32::NAN)),
+            ("sigma_m", Box::new(|p| p.sigma_m = 0.0)),
+            ("tau_g", Box::new(|p| p.tau_g = 1.5)),
+            ("g_o", Box::new(|p| p.g_o = -0.15)),
+            ("g_t", Box::new(|p| p.g_t = f32::INFINITY)),
+            ("tau_s", Box::new(|p| p.tau_s = -0.1)),
+            ("max_candidates", Box::new(|p| p.max_candidates = 0)),
+            (
+                "class_weights[sign]",
+                Box::new(|p| {
+                    p.class_weights.insert("sign".into(), -1.0);
+                }),
+            ),
+            (
+                "default_class_weight",
+                Box::new(|p| p.default_class_weight = -1.0),
+            ),
+            (
+                "generic_words",
+                Box::new(|p| p.generic_words.push("No Entry".into())),
+            ),
+        ];
+        for (field, mutate) in cases {
+            let mut p = VprParams::default();
+            mutate(&mut p);
+            let err = p.validate().expect_err(field);
+            assert!(err.contains(field), "{err:?} should name {field}");
+        }
+    }
+
+    #[test]
+    fn layers_constants() {
+        let l = |osrl, ogtl| Layers { osrl, ogtl };
+        assert_eq!(Layers::SCAL, l(false, false));
+        assert_eq!(Layers::SCAL_OSRL, l(true, false));
+        assert_eq!(Layers::SCAL_OGTL, l(false, true));
+        assert_eq!(Layers::FULL, l(true, true));
+        assert_eq!(Layers::default(), Layers::FULL);
+    }
+}

@@ -1,0 +1,370 @@
+//! SCAL, the Scene Context Attention Layer: the scene-primary hypothesis.
+//!
+//! It is the only layer that touches every eligible keyframe, so it is one
+//! pass over the descriptor matrix: the clipped cosine `s_e`, a mild scene
+//! class modulation `s̃_e`, and a temporal average `S_s` over the query's
+//! and the candidate's short histories (following each side's predecessor
+//! chain). Only the top `K` by `S_s` go on to the object and text layers, and
+//! they are selected with a partial sort, so the pass stays `O(N·d)`.
+
+use std::cmp::Ordering;
+
+use crate::keyframe::{Features, SceneClass};
+use crate::vpr::clip01;
+use crate::vpr::matrix::dot;
+use crate::vpr::memory::KeyframeMemory;
+use crate::vpr::params::VprParams;
+
+/// `s_e = clip(ê_Qᵀ ê_C, 0, 1)` for L2-normalised descriptors.
+pub fn cosine(a: &[f32], b: &[f32]) -> f32 {
+    clip01(dot(a, b))
+}
+
+/// `C_cat`: Bhattacharyya coefficient `Σ_k sqrt(p_a(k) p_b(k))` over the
+/// classes present in both sparse lists, clamped to [0, 1]; `None` when
+/// either list is empty (no scene model ran).
+pub fn scene_compatibility(a: &[SceneClass], b: &[SceneClass]) -> Option<f32> {
+    if a.is_empty() || b.is_empty() {
+        return None;
+    }
+    let bc: f32 = a
+        .iter()
+        .filter_map(|x| {
+            b.iter()
+                .find(|y| y.class_id == x.class_id)
+                .map(|y| (clip01(x.probability) * clip01(y.probability)).sqrt())
+        })
+        .sum();
+    Some(clip01(bc))
+}
+
+/// `s̃_e = s_e (1 + λ_c C_cat) / (1 + λ_c)`.
+///
+/// With `C_cat = None` there is no modulation (`s̃_e = s_e`): treating a
+/// missing scene model as `C_cat = 0` would scale every score by
+/// `1 / (1 + λ_c)` and could push all of them below the selection threshold.
+pub fn modulated(s_e: f32, c_cat: Option<f32>, lambda_c: f32) -> f32 {
+    match c_cat {
+        Some(c) => s_e * (1.0 + lambda_c * c) / (1.0 + lambda_c),
+        None => s_e,
+    }
+}
+
+/// The query side of SCAL.
+#[derive(Debug, Clone, PartialEq)]
+pub struct ScalQuery<'a> {
+    /// `[0]` is the current observation `Q_t`, then its predecessors most
+    /// recent first; at most `alpha.len() − 1` predecessors are used.
+    pub history: Vec<&'a Features>,
+}
+
+/// One candidate's SCAL evidence.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct ScalHit {
+    /// Row in the [`KeyframeMemory`].
+    pub row: usize,
+    /// `S_s`, the temporal scene score.
+    pub score: f32,
+    /// `s_e` of the current pair `(Q_t, C_i)`.
+    pub cosine: f32,
+    /// `C_cat` of the current pair.
+    pub scene_compatibility: Option<f32>,
+    /// `k`, the number of temporal steps used (1 to 3).
+    pub depth: usize,
+}
+
+/// `S_s = Σ_{j<k} α_j s̃_e(Q_{t−j}, C_{i−j}) / Σ_{j<k} α_j` for one row.
+///
+/// `C_{i−j}` follows `predecessor` `j` times; `k` is 1 plus the number of
+/// steps for which both `Q_{t−j}` and `C_{i−j}` exist, contiguous from
+/// `j = 0`, at most `alpha.len()`. The history must not be empty.
+fn scal_hit<M: KeyframeMemory + ?Sized>(
+    params: &VprParams,
+    history: &[&Features],
+    memory: &M,
+    row: usize,
+) -> ScalHit {
+    let descriptors = memory.descriptors();
+    let steps = params.alpha.len().min(history.len());
+    let (mut num, mut den) = (0.0f32, 0.0f32);
+    let (mut first_cos, mut first_cat) = (0.0, None);
+    let mut depth = 0;
+    let mut c_row = row;
+    for (j, q) in history.iter().enumerate().take(steps) {
+        if j > 0 {
+            match memory.predecessor(c_row) {
+                Some(p) if p < descriptors.len() => c_row = p,
+                _ => break,
+            }
+        }
+        let s_e = cosine(&q.descriptor, descriptors.row(c_row));
+        let c_cat = scene_compatibility(&q.scene, memory.scene(c_row));
+        if j == 0 {
+            first_cos = s_e;
+            first_cat = c_cat;
+        }
+        num += params.alpha[j] * modulated(s_e, c_cat, params.lambda_c);
+        den += params.alpha[j];
+        depth = j + 1;
+    }
+    let score = if den > 0.0 { clip01(num / den) } else { 0.0 };
+    ScalHit {
+        row,
+        score,
+        cosine: first_cos,
+        scene_compatibility: first_cat,
+        depth,
+    }
+}
+
+/// Ranking order of SCAL hits: `S_s` descending, then lower row first.
+fn by_score(a: &ScalHit, b: &ScalHit) -> Ordering {
+    b.score.total_cmp(&a.score).then(a.row.cmp(&b.row))
+}
+
+/// SCAL over every eligible row: the top `params.top_k` hits by `S_s`
+/// descending (ties: lower row first). Empty if the query has no history.
+pub fn scal_scores<M: KeyframeMemory + ?Sized>(
+    params: &VprParams,
+    query: &ScalQuery,
+    memory: &M,
+    eligible: &dyn Fn(usize) -> bool,
+) -> Vec<ScalHit> {
+    if query.history.is_empty() {
+        return Vec::new();
+    }
+    let mut hits: Vec<ScalHit> = (0..memory.descriptors().len())
+        .filter(|&row| eligible(row))
+        .map(|row| scal_hit(params, &query.history, memory, row))
+        .collect();
+    top_k(&mut hits, params.top_k);
+    hits
+}
+
+/// Keeps the best `k` hits in ranking order: `O(N + k log k)`.
+fn top_k(hits: &mut Vec<ScalHit>, k: usize) {
+    if k == 0 {
+        hits.clear();
+        return;
+    }
+    if hits.len() > k {
+        hits.select_nth_unstable_by(k - 1, by_score);
+        hits.truncate(k);
+    }
+    hits.sort_unstable_by(by_score);
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::vpr::memory::VecMemory;
+    use crate::vpr::testing::{close, features, scene_strategy, unit_vector};
+    use proptest::prelude::*;
+
+    #[test]
+    fn cosine_is_clipped() {
+        // Dot = −0.6: clipped to 0.
+        assert_eq!(cosine(&[1.0, 0.0], &[-0.6, 0.8]), 0.0);
+        // Dot = 0.6.
+        assert!(close(cosine(&[1.0, 0.0], &[0.6, 0.8]), 0.6));
+        // Rounding above 1 is clipped to 1.
+        assert_eq!(cosine(&[1.0000001, 0.0], &[1.0, 0.0]), 1.0);
+        assert_eq!(cosine(&[f32::NAN], &[1.0]), 0.0);
+    }
+
+    #[test]
+    fn bhattacharyya_compatibility() {
+        let sc = |v: &[(u32, f32)]| -> Vec<SceneClass> {
+            v.iter()
+                .map(|&(class_id, probability)| SceneClass {
+                    class_id,
+                    probability,
+                })
+                .collect()
+        };
+        // Only class 1 is shared: sqrt(0.6 · 0.5) = sqrt(0.3) = 0.547723.
+        let a = sc(&[(1, 0.6), (2, 0.4)]);
+        let b = sc(&[(3, 0.5), (1, 0.5)]);
+        assert!(close(scene_compatibility(&a, &b).unwrap(), 0.547723));
+        // Identical: sqrt(.64²) + sqrt(.36²) = 1.
+        let c = sc(&[(4, 0.64), (5, 0.36)]);
+        assert!(close(scene_compatibility(&c, &c).unwrap(), 1.0));
+        // Disjoint: 0.
+        assert_eq!(scene_compatibility(&a, &c), Some(0.0));
+        assert_eq!(scene_compatibility(&a, &[]), None);
+        assert_eq!(scene_compatibility(&[], &a), None);
+    }
+
+    #[test]
+    fn scene_modulation() {
+        // 0.8 · (1 + 0.1 · 0.5) / 1.1 = 0.84 / 1.1 = 0.763636.
+        assert!(close(modulated(0.8, Some(0.5), 0.1), 0.763636));
+        // C = 1 leaves s_e unchanged; C = 0 gives 0.8 / 1.1 = 0.727273.
+        assert!(close(modulated(0.8, Some(1.0), 0.1), 0.8));
+        assert!(close(modulated(0.8, Some(0.0), 0.1), 0.727273));
+        // No scene model: no modulation.
+        assert_eq!(modulated(0.8, None, 0.1), 0.8);
+    }
+
+    /// Rows: 0 = (0, 1), 1 = (0.6, 0.8) after 0, 2 = (0.8, 0.6) after 1.
+    /// Every query observation is (1, 0), so the cosines are the x parts.
+    fn chain() -> VecMemory {
+        let mut m = VecMemory::new(2);
+        let r0 = m.push(features(&[0.0, 1.0], &[], vec![]), None);
+        let r1 = m.push(features(&[0.6, 0.8], &[], vec![]), Some(r0));
+        m.push(features(&[0.8, 0.6], &[], vec![]), Some(r1));
+        m
+    }
+
+    fn scores(history_len: usize, m: &VecMemory) -> Vec<ScalHit> {
+        let q = features(&[1.0, 0.0], &[], vec![]);
+        let history = vec![&q; history_len];
+        let mut hits = scal_scores(&VprParams::default(), &ScalQuery { history }, m, &|_| true);
+        hits.sort_by_key(|h| h.row);
+        hits
+    }
+
+    #[test]
+    fn temporal_score_depths() {
+        let m = chain();
+        let hits = scores(3, &m);
+        // Row 2, k = 3: 0.5 · 0.8 + 0.3 · 0.6 + 0.2 · 0 = 0.58.
+        assert_eq!(hits[2].depth, 3);
+        assert!(close(hits[2].score, 0.58));
+        assert!(close(hits[2].cosine, 0.8));
+        // Row 1, k = 2 (no second predecessor): (0.5 · 0.6 + 0.3 · 0) / 0.8
+        // = 0.375, i.e. α renormalised to 0.5/0.8 and 0.3/0.8.
+        assert_eq!(hits[1].depth, 2);
+        assert!(close(hits[1].score, 0.375));
+        // Row 0, k = 1: s_e = 0.
+        assert_eq!(hits[0].depth, 1);
+        assert!(close(hits[0].score, 0.0));
+
+        // A query history of two limits row 2 to k = 2:
+        // (0.5 · 0.8 + 0.3 · 0.6) / 0.8 = 0.725.
+        let hits = scores(2, &m);
+        assert_eq!(hits[2].depth, 2);
+        assert!(close(hits[2].score, 0.725));
+        // History of one: k = 1, S_s = s_e = 0.8.
+        let hits = scores(1, &m);
+        assert_eq!(hits[2].depth, 1);
+        assert!(close(hits[2].score, 0.8));
+        // No history: nothing.
+        assert!(scores(0, &m).is_empty());
+    }
+
+    #[test]
+    fn temporal_score_with_scene_modulation() {
+        // Current pair: s_e = 0.8, C_cat = sqrt(0.25) = 0.5 → 0.763636.
+        // Previous pair: s_e = 0.6, no scene on the candidate → 0.6.
+        // k = 2: (0.5 · 0.763636 + 0.3 · 0.6) / 0.8 = 0.702273.
+        let mut m = VecMemory::new(2);
+        let r0 = m.push(features(&[0.6, 0.8], &[], vec![]), None);
+        let r1 = m.push(features(&[0.8, 0.6], &[(7, 0.25)], vec![]), Some(r0));
+        let q0 = features(&[1.0, 0.0], &[(7, 1.0)], vec![]);
+        let q1 = features(&[1.0, 0.0], &[(7, 1.0)], vec![]);
+        let hits = scal_scores(
+            &VprParams::default(),
+            &ScalQuery {
+                history: vec![&q0, &q1],
+            },
+            &m,
+            &|row| row == r1,
+        );
+        assert_eq!(hits.len(), 1);
+        assert_eq!(hits[0].row, r1);
+        assert_eq!(hits[0].scene_compatibility, Some(0.5));
+        assert!(close(hits[0].score, 0.702273));
+    }
+
+    #[test]
+    fn eligibility_and_top_k_with_ties() {
+        // Five identical rows: all S_s = 1; ties go to the lower row.
+        let mut m = VecMemory::new(2);
+        for _ in 0..5 {
+            m.push(features(&[1.0, 0.0], &[], vec![]), None);
+        }
+        let q = features(&[1.0, 0.0], &[], vec![]);
+        let params = VprParams {
+            top_k: 2,
+            ..VprParams::default()
+        };
+        let hits = scal_scores(&params, &ScalQuery { history: vec![&q] }, &m, &|row| {
+            row != 0
+        });
+        let rows: Vec<usize> = hits.iter().map(|h| h.row).collect();
+        assert_eq!(rows, vec![1, 2]);
+    }
+
+    /// A random store: unit descriptors, random scene lists, and for each
+    /// row a predecessor among the earlier rows (or none).
+    fn memory_strategy() -> impl Strategy<Value = VecMemory> {
+        prop::collection::vec(
+            (
+                unit_vector(4),
+                scene_strategy(),
+                any::<prop::sample::Index>(),
+                any::<bool>(),
+            ),
+            0..60,
+        )
+        .prop_map(|rows| {
+            let mut m = VecMemory::new(4);
+            for (i, (d, scene, pred, has_pred)) in rows.into_iter().enumerate() {
+                let pred = (has_pred && i > 0).then(|| pred.index(i));
+                m.push(
+                    Features {
+                        descriptor: d,
+                        scene,
+                        objects: vec![],
+                    },
+                    pred,
+                );
+            }
+            m
+        })
+    }
+
+    proptest! {
+        #[test]
+        fn top_k_equals_brute_force(
+            m in memory_strategy(),
+            history in prop::collection::vec((unit_vector(4), scene_strategy()), 1..4),
+            mask in prop::collection::vec(any::<bool>(), 60),
+            k in 1usize..30,
+        ) {
+            let feats: Vec<Features> = history
+                .into_iter()
+                .map(|(descriptor, scene)| Features { descriptor, scene, objects: vec![] })
+                .collect();
+            let query = ScalQuery { history: feats.iter().collect() };
+            let params = VprParams { top_k: k, ..VprParams::default() };
+            let eligible = |row: usize| mask[row];
+            let fast = scal_scores(&params, &query, &m, &eligible);
+
+            let mut all: Vec<ScalHit> = (0..m.descriptors().len())
+                .filter(|&r| eligible(r))
+                .map(|r| scal_hit(&params, &query.history, &m, r))
+                .collect();
+            all.sort_by(by_score);
+            all.truncate(k);
+            prop_assert_eq!(fast, all);
+        }
+
+        #[test]
+        fn scores_are_in_unit_interval(
+            m in memory_strategy(),
+            history in prop::collection::vec((unit_vector(4), scene_strategy()), 1..4),
+        ) {
+            let feats: Vec<Features> = history
+                .into_iter()
+                .map(|(descriptor, scene)| Features { descriptor, scene, objects: vec![] })
+                .collect();
+            let query = ScalQuery { history: feats.iter().collect() };
+            for hit in scal_scores(&VprParams::default(), &query, &m, &|_| true) {
+                prop_assert!((0.0..=1.0).contains(&hit.score));
+                prop_assert!((1..=3).contains(&hit.depth));
+            }
+        }
+    }
+}

@@ -1,0 +1,288 @@
+//! Bad requests get INVALID_ARGUMENT naming the field and change nothing;
+//! the standard health and reflection services answer.
+
+use humem::proto;
+use tonic::Code;
+
+use crate::harness::Server;
+use crate::scenes::{self, World};
+
+fn features(kf: &mut proto::Keyframe) -> &mut proto::Features {
+    match kf.content.as_mut().unwrap() {
+        proto::keyframe::Content::Features(f) => f,
+    }
+}
+
+#[tokio::test(flavor = "multi_thread")]
+async fn bad_requests_are_refused_with_the_field_named_and_change_nothing() {
+    let dir = tempfile::tempdir().unwrap();
+    let server = Server::start(dir.path());
+    let mut client = server.client().await;
+    let mut world = World::new(5, 7);
+    let good = scenes::loop_drive(&mut world, "r", "s", 0, 5, 0);
+    scenes::insert_all(&mut client, good.iter().map(|(kf, _)| kf.clone())).await;
+    let base = || good[0].0.clone();
+
+    type Edit = Box<dyn Fn(&mut proto::Keyframe)>;
+    let cases: Vec<(&str, Edit)> =
+        vec![
+        ("keyframe.robot_id: required", Box::new(|k| k.robot_id.clear())),
+        ("keyframe.keyframe_id: required", Box::new(|k| k.keyframe_id = None)),
+        ("keyframe.frame_id: required", Box::new(|k| k.frame_id = None)),
+        ("keyframe.map_id: required", Box::new(|k| k.map_id = None)),
+        ("keyframe.pose: required", Box::new(|k| k.pose = None)),
+        ("keyframe.features: required", Box::new(|k| k.content = None)),
+        ("keyframe.timestamp: not a finite number", Box::new(|k| k.timestamp = f64::INFINITY)),
+        (
+            "keyframe.pose.rotation: quaternion has zero length",
+            Box::new(|k| k.pose.as_mut().unwrap().rotation = Some(proto::Quaternion::default())),
+        ),
+        (
+            "keyframe.features.descriptor[3]: not a finite number",
+            Box::new(|k| features(k).descriptor[3] = f32::NAN),
+        ),
+        (
+            "keyframe.features.descriptor: has 65 values but this store holds 64-value descriptors",
+            Box::new(|k| features(k).descriptor.push(0.5)),
+        ),
+        (
+            "keyframe.features.descriptor: 9000 values, at most 8192",
+            Box::new(|k| features(k).descriptor = vec![0.1; 9000]),
+        ),
+        (
+            "keyframe.features.descriptor: all values are zero",
+            Box::new(|k| features(k).descriptor = vec![0.0; 64]),
+        ),
+        (
+            "keyframe.features.objects[0].confidence: 1.5 is outside [0, 1]",
+            Box::new(|k| features(k).objects[0].confidence = 1.5),
+        ),
+        (
+            "keyframe.features.objects[0].x: -0.1 is outside [0, 1]",
+            Box::new(|k| features(k).objects[0].x = -0.1),
+        ),
+        (
+            "keyframe.features.objects[0].texts[0].confidence: not a finite number",
+            Box::new(|k| features(k).objects[0].texts[0].confidence = f32::NAN),
+        ),
+        (
+            "keyframe.features.objects[0].class_name: required",
+            Box::new(|k| features(k).objects[0].class_name.clear()),
+        ),
+        (
+            "keyframe.features.objects: 300 objects, at most 256",
+            Box::new(|k| {
+                let o = features(k).objects[0].clone();
+                features(k).objects = vec![o; 300];
+            }),
+        ),
+        (
+            "keyframe.features.scene: probabilities sum to 1.2000, more than 1",
+            Box::new(|k| {
+                features(k).scene = vec![
+                    proto::SceneClass { class_id: 1, probability: 0.6 },
+                    proto::SceneClass { class_id: 2, probability: 0.6 },
+                ]
+            }),
+        ),
+    ];
+    for (expected, edit) in &cases {
+        // Each bad keyframe gets a fresh id, so that a wrongly accepted one
+        // would show up as a new keyframe.
+        let mut kf = base();
+        kf.keyframe_id = Some(777);
+        edit(&mut kf);
+        let status = client
+            .insert(proto::InsertRequest {
+                keyframe: Some(kf.clone()),
+            })
+            .await
+            .expect_err(expected);
+        assert_eq!(
+            status.code(),
+            Code::InvalidArgument,
+            "{expected}: {status:?}"
+        );
+        assert_eq!(status.message(), *expected);
+        // In a batch, the whole batch is refused and the index is named.
+        let mut ok = base();
+        ok.keyframe_id = Some(778);
+        let status = client
+            .insert_batch(proto::InsertBatchRequest {
+                keyframes: vec![ok, kf],
+            })
+            .await
+            .expect_err(expected);
+        assert_eq!(status.code(), Code::InvalidArgument);
+        let in_batch = expected.replacen("keyframe.", "keyframes[1].", 1);
+        assert_eq!(status.message(), in_batch);
+    }
+
+    let status = client
+        .insert(proto::InsertRequest { keyframe: None })
+        .await
+        .unwrap_err();
+    assert_eq!(
+        (status.code(), status.message()),
+        (Code::InvalidArgument, "keyframe: required")
+    );
+
+    // Queries.
+    let query = || scenes::query_stored("r", "s", 2);
+    type QueryEdit = Box<dyn Fn(&mut proto::QueryRequest)>;
+    let query_cases: Vec<(&str, QueryEdit)> = vec![
+        ("scope: unknown value 99", Box::new(|q| q.scope = 99)),
+        ("layers: unknown value -1", Box::new(|q| q.layers = -1)),
+        ("kind: unknown value 7", Box::new(|q| q.kind = 7)),
+        (
+            "threshold: 1.5 is outside [0, 1]",
+            Box::new(|q| q.threshold = Some(1.5)),
+        ),
+        ("top_n: must be at least 1", Box::new(|q| q.top_n = Some(0))),
+        (
+            "top_n: 1000 is more than 100",
+            Box::new(|q| q.top_n = Some(1000)),
+        ),
+        ("robot_id: required", Box::new(|q| q.robot_id.clear())),
+        (
+            "scope: SCOPE_LISTED needs robot_ids or maps",
+            Box::new(|q| q.scope = proto::Scope::Listed as i32),
+        ),
+        (
+            "robot_ids: only meaningful with SCOPE_LISTED",
+            Box::new(|q| q.robot_ids = vec!["x".into()]),
+        ),
+        (
+            "features: required unless keyframe_id names a stored keyframe",
+            Box::new(|q| q.keyframe_id = None),
+        ),
+        (
+            "features.descriptor: has 3 values but this store holds 64-value descriptors",
+            Box::new(|q| {
+                q.content = Some(proto::query_request::Content::Features(proto::Features {
+                    descriptor: vec![1.0, 2.0, 3.0],
+                    ..Default::default()
+                }))
+            }),
+        ),
+    ];
+    for (expected, edit) in &query_cases {
+        let mut q = query();
+        edit(&mut q);
+        let status = client.query(q).await.expect_err(expected);
+        assert_eq!(
+            (status.code(), status.message()),
+            (Code::InvalidArgument, *expected)
+        );
+    }
+    let mut q = query();
+    q.keyframe_id = Some(4242);
+    let status = client.query(q).await.unwrap_err();
+    assert_eq!(status.code(), Code::NotFound);
+    assert!(
+        status.message().starts_with("keyframe_id: "),
+        "{}",
+        status.message()
+    );
+
+    // Maintenance.
+    let status = client
+        .erase(proto::EraseRequest {
+            robot_id: "r".into(),
+            session_id: "s".into(),
+            keyframe_ids: vec![],
+        })
+        .await
+        .unwrap_err();
+    assert_eq!(
+        (status.code(), status.message()),
+        (Code::InvalidArgument, "keyframe_ids: required (empty)")
+    );
+    let status = client
+        .reset_map(proto::ResetMapRequest {
+            robot_id: "r".into(),
+            session_id: "s".into(),
+            map_id: None,
+        })
+        .await
+        .unwrap_err();
+    assert_eq!(
+        (status.code(), status.message()),
+        (Code::InvalidArgument, "map_id: required")
+    );
+    let status = client
+        .update_poses(proto::UpdatePosesRequest {
+            robot_id: "r".into(),
+            session_id: "s".into(),
+            updates: vec![proto::PoseUpdate {
+                keyframe_id: Some(1),
+                pose: None,
+                map_id: None,
+            }],
+        })
+        .await
+        .unwrap_err();
+    assert_eq!(
+        (status.code(), status.message()),
+        (Code::InvalidArgument, "updates[0].pose: required")
+    );
+
+    // A message over the transport limit is refused before it is decoded.
+    let mut huge = base();
+    features(&mut huge).objects[0].texts[0].text = "x".repeat(17 << 20);
+    let status = client
+        .insert(proto::InsertRequest {
+            keyframe: Some(huge),
+        })
+        .await
+        .unwrap_err();
+    assert_ne!(status.code(), Code::Ok);
+
+    // Nothing changed.
+    let stats = client
+        .stats(proto::StatsRequest {})
+        .await
+        .unwrap()
+        .into_inner();
+    assert_eq!(stats.keyframes, 5);
+}
+
+#[tokio::test(flavor = "multi_thread")]
+async fn health_and_reflection_answer() {
+    use tonic_health::pb::health_check_response::ServingStatus;
+    use tonic_health::pb::health_client::HealthClient;
+    use tonic_health::pb::HealthCheckRequest;
+
+    let dir = tempfile::tempdir().unwrap();
+    let server = Server::start(dir.path());
+    let mut health = HealthClient::new(server.channel().await);
+    let reply = health
+        .check(HealthCheckRequest {
+            service: "humem.v1.PlaceRecognition".into(),
+        })
+        .await
+        .unwrap()
+        .into_inner();
+    assert_eq!(reply.status(), ServingStatus::Serving);
+
+    use tonic_reflection::pb::v1::server_reflection_client::ServerReflectionClient;
+    use tonic_reflection::pb::v1::server_reflection_request::MessageRequest;
+    use tonic_reflection::pb::v1::server_reflection_response::MessageResponse;
+    use tonic_reflection::pb::v1::ServerReflectionRequest;
+    let mut reflection = ServerReflectionClient::new(server.channel().await);
+    let request = ServerReflectionRequest {
+        host: String::new(),
+        message_request: Some(MessageRequest::ListServices(String::new())),
+    };
+    let mut replies = reflection
+        .server_reflection_info(tokio_stream::iter([request]))
+        .await
+        .unwrap()
+        .into_inner();
+    let reply = replies.message().await.unwrap().unwrap();
+    let Some(MessageResponse::ListServicesResponse(list)) = reply.message_response else {
+        panic!("unexpected reflection reply");
+    };
+    let names: Vec<_> = list.service.iter().map(|s| s.name.as_str()).collect();
+    assert!(names.contains(&"humem.v1.PlaceRecognition"), "{names:?}");
+}

@@ -1,0 +1,123 @@
+//! Starting, stopping and killing the real server binary.
+
+use std::io::{BufRead, BufReader};
+use std::path::{Path, PathBuf};
+use std::process::{Child, Command, Stdio};
+use std::sync::mpsc;
+use std::time::Duration;
+
+use humem::proto::place_recognition_client::PlaceRecognitionClient;
+use tonic::transport::Channel;
+
+/// A running `humem serve`.
+pub struct Server {
+    child: Option<Child>,
+    pub url: String,
+    pub data_dir: PathBuf,
+}
+
+impl Server {
+    /// Starts the server on a free port with `data_dir` as its store.
+    pub fn start(data_dir: &Path) -> Server {
+        Self::start_with(data_dir, &[])
+    }
+
+    /// Starts the server with extra `serve` arguments or `KEY=VALUE`
+    /// environment settings (those containing `=`).
+    pub fn start_with(data_dir: &Path, extra: &[&str]) -> Server {
+        let mut command = Command::new(env!("CARGO_BIN_EXE_humem"));
+        command
+            .args(["serve", "--listen", "127.0.0.1:0", "--data-dir"])
+            .arg(data_dir)
+            .env("RUST_LOG", "warn")
+            .env_remove("HUMEM_CONFIG")
+            .stdout(Stdio::piped())
+            .stderr(Stdio::inherit());
+        for arg in extra {
+            match arg.split_once('=') {
+                Some((key, value)) if !arg.starts_with("--") => {
+                    command.env(key, value);
+                }
+                _ => {
+                    command.arg(arg);
+                }
+            }
+        }
+        let mut child = command.spawn().expect("starting humem serve");
+        let stdout = child.stdout.take().expect("piped stdout");
+        let (tx, rx) = mpsc::channel();
+        std::thread::spawn(move || {
+            for line in BufReader::new(stdout).lines() {
+                let Ok(line) = line else { break };
+                if let Some(addr) = line.strip_prefix("humem listening on ") {
+                    let _ = tx.send(addr.to_string());
+                }
+            }
+        });
+        let addr = rx
+            .recv_timeout(Duration::from_secs(60))
+            .expect("humem serve did not report its address");
+        Server {
+            child: Some(child),
+            url: format!("http://{addr}"),
+            data_dir: data_dir.to_path_buf(),
+        }
+    }
+
+    pub async fn client(&self) -> PlaceRecognitionClient<Channel> {
+        PlaceRecognitionClient::connect(self.url.clone())
+            .await
+            .expect("connecting to humem")
+            .max_encoding_message_size(64 << 20)
+    }
+
+    pub async fn channel(&self) -> Channel {
+        Channel::from_shared(self.url.clone())
+            .unwrap()
+            .connect()
+            .await
+            .expect("connecting to humem")
+    }
+
+    /// SIGKILL: no chance to flush anything.
+    pub fn kill(mut self) {
+        let mut child = self.child.take().unwrap();
+        child.kill().expect("SIGKILL");
+        child.wait().unwrap();
+    }
+
+    /// SIGTERM, then waits; returns the exit status.
+    pub fn terminate(mut self) -> std::process::ExitStatus {
+        let mut child = self.child.take().unwrap();
+        let status = Command::new("kill")
+            .args(["-TERM", &child.id().to_string()])
+            .status()
+            .expect("running kill");
+        assert!(status.success());
+        for _ in 0..600 {
+            if let Some(status) = child.try_wait().unwrap() {
+                return status;
+            }
+            std::thread::sleep(Duration::from_millis(50));
+        }
+        child.kill().ok();
+        panic!("humem did not stop within 30 s of SIGTERM");
+    }
+
+    /// Stops this server and starts another on the same data directory.
+    pub fn restart(self) -> Server {
+        let dir = self.data_dir.clone();
+        let status = self.terminate();
+        assert!(status.success(), "humem exited with {status}");
+        Server::start(&dir)
+    }
+}
+
+impl Drop for Server {
+    fn drop(&mut self) {
+        if let Some(mut child) = self.child.take() {
+            let _ = child.kill();
+            let _ = child.wait();
+        }
+    }
+}

@@ -1,0 +1,11 @@
+//! End-to-end tests: they start the real `humem` binary on a free loopback
+//! port with a temporary data directory and drive it through the generated
+//! tonic client, as a SLAM system would.
+
+mod harness;
+mod scenes;
+
+mod durability;
+mod errors;
+mod maintenance;
+mod retrieval;

@@ -1,0 +1,265 @@
+//! Insert a few hundred keyframes, query, and check the ranking, the
+//! eligibility rule and the scopes.
+
+use humem::proto;
+
+use crate::harness::Server;
+use crate::scenes::{self, id, insert_all, query_stored, World};
+
+fn candidate_ids(reply: &proto::QueryResponse) -> Vec<(String, u64)> {
+    reply
+        .candidates
+        .iter()
+        .map(|c| (c.robot_id.clone(), c.keyframe_id))
+        .collect()
+}
+
+#[tokio::test(flavor = "multi_thread")]
+async fn revisited_places_are_found_first_and_neighbours_are_excluded() {
+    let dir = tempfile::tempdir().unwrap();
+    let server = Server::start(dir.path());
+    let mut client = server.client().await;
+    let mut world = World::new(200, 1);
+    // 200 places, then back through the first 150: 350 keyframes.
+    let drive = scenes::loop_drive(&mut world, "robot-a", "s1", 0, 200, 150);
+    // Some one at a time, the rest in batches.
+    for (kf, _) in &drive[..20] {
+        client
+            .insert(proto::InsertRequest {
+                keyframe: Some(kf.clone()),
+            })
+            .await
+            .unwrap();
+    }
+    insert_all(&mut client, drive[20..].iter().map(|(kf, _)| kf.clone())).await;
+
+    let mut correct = 0;
+    let revisits = &drive[200..];
+    for (kf, place) in revisits {
+        let reply = client
+            .query(query_stored("robot-a", "s1", id(kf)))
+            .await
+            .unwrap()
+            .into_inner();
+        assert!(reply.candidates.len() <= 5);
+        for c in &reply.candidates {
+            let gap = kf.frame_id.unwrap().abs_diff(c.frame_id);
+            assert!(
+                gap >= 100,
+                "candidate {} is only {gap} frames away",
+                c.keyframe_id
+            );
+            assert!(c.score > 0.70, "candidate below the threshold: {}", c.score);
+            let e = c.evidence.as_ref().unwrap();
+            assert!(c.score >= e.scene_score - 1e-6);
+        }
+        let scores: Vec<f32> = reply.candidates.iter().map(|c| c.score).collect();
+        assert!(
+            scores.windows(2).all(|w| w[0] >= w[1]),
+            "not ranked: {scores:?}"
+        );
+        if reply.candidates.first().map(|c| c.keyframe_id) == Some(*place as u64) {
+            correct += 1;
+            let top = &reply.candidates[0];
+            let e = top.evidence.as_ref().unwrap();
+            assert!(e.descriptor_cosine > 0.7);
+            // The sign "ROOM n" is on both, at the same place in the image.
+            assert_eq!(e.object_matches.len(), 1);
+            assert!(e.object_score > 0.5);
+            // 150 of 350 keyframes carry each text twice over: rare, but "ROOM" is
+            // not a generic word, so the text counts.
+            assert_eq!(e.text_matches.len(), 1, "{e:?}");
+            assert_eq!(
+                e.text_matches[0].candidate_text,
+                format!("ROOM {}", 100 + place)
+            );
+        }
+    }
+    assert!(
+        correct >= revisits.len() * 95 / 100,
+        "only {correct} of {} revisits found at rank 1",
+        revisits.len()
+    );
+
+    // A keyframe of the first lap has no valid match: its only near-duplicates
+    // are its own neighbours, which the frame gap excludes.
+    let reply = client
+        .query(query_stored("robot-a", "s1", 120))
+        .await
+        .unwrap()
+        .into_inner();
+    assert!(reply.candidates.iter().all(|c| c.keyframe_id != 120));
+    assert!(
+        reply
+            .candidates
+            .iter()
+            .all(|c| c.frame_id.abs_diff(360) >= 100),
+        "{:?}",
+        candidate_ids(&reply)
+    );
+    // Eligible: every keyframe at least 100 frames (34 keyframes) away.
+    let expected_eligible = (0..350u64).filter(|k| (3 * k).abs_diff(360) >= 100).count();
+    assert_eq!(reply.eligible_keyframes, expected_eligible as u64);
+
+    // With no frame gap, a query with features of keyframe 120 finds 120 itself
+    // only when it is asked as a frame, not as that keyframe.
+    let features = scenes::features_of(&drive[120].0);
+    let reply = client
+        .query(proto::QueryRequest {
+            robot_id: "robot-a".into(),
+            session_id: "s1".into(),
+            frame_id: Some(361),
+            min_frame_gap: Some(0),
+            content: Some(proto::query_request::Content::Features(features)),
+            ..Default::default()
+        })
+        .await
+        .unwrap()
+        .into_inner();
+    assert_eq!(reply.candidates[0].keyframe_id, 120);
+    let e = reply.candidates[0].evidence.as_ref().unwrap();
+    assert!(e.descriptor_cosine > 0.9999, "{e:?}");
+    assert!(reply.candidates[0].score > 0.95);
+}
+
+#[tokio::test(flavor = "multi_thread")]
+async fn scopes_select_maps_and_robots() {
+    let dir = tempfile::tempdir().unwrap();
+    let server = Server::start(dir.path());
+    let mut client = server.client().await;
+    let mut world = World::new(40, 2);
+    // Robot A maps places 0..40 in map 0 and again (a new map after a tracking
+    // loss) in map 1; robot B maps them in its own map 0.
+    let a0 = scenes::loop_drive(&mut world, "robot-a", "s", 0, 40, 0);
+    let a1: Vec<_> = scenes::loop_drive(&mut world, "robot-a", "s", 1, 40, 0)
+        .into_iter()
+        .map(|(mut kf, place)| {
+            kf.keyframe_id = Some(kf.keyframe_id.unwrap() + 1000);
+            kf.frame_id = Some(kf.frame_id.unwrap() + 10_000);
+            (kf, place)
+        })
+        .collect();
+    let b0 = scenes::loop_drive(&mut world, "robot-b", "s", 0, 40, 0);
+    for part in [&a0, &a1, &b0] {
+        insert_all(&mut client, part.iter().map(|(kf, _)| kf.clone())).await;
+    }
+
+    let ask = |scope: proto::Scope, robots: Vec<String>, maps: Vec<proto::MapRef>| {
+        let mut q = query_stored("robot-a", "s", 1005);
+        q.scope = scope as i32;
+        q.robot_ids = robots;
+        q.maps = maps;
+        q.top_n = Some(10);
+        q.threshold = Some(0.5);
+        q
+    };
+    let robots_and_maps = |reply: &proto::QueryResponse| -> Vec<(String, u64)> {
+        reply
+            .candidates
+            .iter()
+            .map(|c| (c.robot_id.clone(), c.map_id))
+            .collect()
+    };
+
+    let same = client
+        .query(ask(proto::Scope::SameMap, vec![], vec![]))
+        .await
+        .unwrap()
+        .into_inner();
+    // Map 1 holds no other view of place 5 at least 100 frames away.
+    assert!(robots_and_maps(&same)
+        .iter()
+        .all(|m| *m == ("robot-a".into(), 1)));
+
+    let other = client
+        .query(ask(proto::Scope::OtherMaps, vec![], vec![]))
+        .await
+        .unwrap()
+        .into_inner();
+    let found = robots_and_maps(&other);
+    assert!(
+        found.contains(&("robot-a".into(), 0)) && found.contains(&("robot-b".into(), 0)),
+        "{found:?}"
+    );
+    assert!(!found.contains(&("robot-a".into(), 1)));
+    // Both views of place 5 come first; B's keyframe 5 is eligible with no gap.
+    let top2: Vec<_> = other.candidates[..2]
+        .iter()
+        .map(|c| (c.robot_id.as_str(), c.keyframe_id))
+        .collect();
+    assert!(
+        top2.contains(&("robot-a", 5)) && top2.contains(&("robot-b", 5)),
+        "{top2:?}"
+    );
+
+    let listed = client
+        .query(ask(proto::Scope::Listed, vec!["robot-b".into()], vec![]))
+        .await
+        .unwrap()
+        .into_inner();
+    assert!(!listed.candidates.is_empty());
+    assert!(robots_and_maps(&listed).iter().all(|(r, _)| r == "robot-b"));
+    assert_eq!(listed.candidates[0].keyframe_id, 5);
+
+    let by_map = client
+        .query(ask(
+            proto::Scope::Listed,
+            vec![],
+            vec![proto::MapRef {
+                robot_id: "robot-a".into(),
+                session_id: None,
+                map_id: 0,
+            }],
+        ))
+        .await
+        .unwrap()
+        .into_inner();
+    assert_eq!(robots_and_maps(&by_map)[0], ("robot-a".into(), 0));
+    assert!(robots_and_maps(&by_map)
+        .iter()
+        .all(|m| *m == ("robot-a".into(), 0)));
+    assert_eq!(by_map.eligible_keyframes, 40);
+}
+
+#[tokio::test(flavor = "multi_thread")]
+async fn grounded_text_breaks_a_tie_between_look_alike_places() {
+    let dir = tempfile::tempdir().unwrap();
+    let server = Server::start(dir.path());
+    let mut client = server.client().await;
+    let mut world = World::new(3, 3);
+    // Two corridors that look the same; only the room number differs.
+    let look = world.view(0, 0.0);
+    let corridor = |kf: u64, text: &str| {
+        scenes::keyframe(
+            "r",
+            "s",
+            [kf, kf * 200, 0],
+            scenes::features(look.clone(), 0, vec![scenes::sign(text, 0.5, 0.4)]),
+        )
+    };
+    insert_all(
+        &mut client,
+        [corridor(1, "ROOM 2.17"), corridor(2, "ROOM 3.04")],
+    )
+    .await;
+    let mut query = query_stored("r", "s", 0);
+    query.keyframe_id = None;
+    query.frame_id = Some(5000);
+    query.content = corridor(9, "ROOM 3.04").content.map(|c| match c {
+        proto::keyframe::Content::Features(f) => proto::query_request::Content::Features(f),
+    });
+    let full = client.query(query.clone()).await.unwrap().into_inner();
+    assert_eq!(full.candidates[0].keyframe_id, 2);
+    let e = full.candidates[0].evidence.as_ref().unwrap();
+    assert!(e.text_score > 0.8 && e.text_distinctiveness > 0.0, "{e:?}");
+    assert_eq!(e.text_matches[0].candidate_text, "ROOM 3.04");
+    assert!(full.candidates[0].score > full.candidates[1].score);
+
+    // SCAL alone cannot tell them apart; the layer switch is honoured.
+    query.layers = proto::Layers::Scal as i32;
+    let scal = client.query(query).await.unwrap().into_inner();
+    assert_eq!(scal.candidates.len(), 2);
+    assert_eq!(scal.candidates[0].score, scal.candidates[1].score);
+    let e = scal.candidates[0].evidence.as_ref().unwrap();
+    assert_eq!((e.object_score, e.text_score), (0.0, 0.0));
+}
