@@ -58,6 +58,9 @@ pub async fn serve(config: Config) -> anyhow::Result<()> {
     println!("humem listening on {local}");
 
     tonic::transport::Server::builder()
+        .layer(tower::util::MapResponseLayer::new(
+            crate::api::oversize::oversize_as_invalid_argument,
+        ))
         .add_service(health_service)
         .add_service(reflection)
         .add_service(api)

@@ -2,6 +2,7 @@
 //! answers, and the tonic service that ties them to the store and pipeline.
 
 pub mod convert;
+pub mod oversize;
 pub mod service;
 pub mod validate;
 
