@@ -5,6 +5,7 @@
 mod harness;
 mod scenes;
 
+mod cli;
 mod durability;
 mod errors;
 mod maintenance;
