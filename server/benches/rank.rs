@@ -7,7 +7,8 @@
 //! and OGTL on the top K), over the real in-memory index, so the ratio
 //! between them is the cost of everything that is not reading descriptors.
 //!
-//! Run with `cargo bench -p humem --bench rank`.
+//! Keyframes carry 16 scene classes (the default `store.scene_top_k`) and
+//! four objects, two with text. Run with `cargo bench -p humem --bench rank`.
 
 use std::hint::black_box;
 
@@ -48,10 +49,10 @@ fn features(rng: &mut Rng, dim: usize, place: usize) -> Features {
     };
     Features {
         descriptor,
-        scene: (0..5)
+        scene: (0..16)
             .map(|k| SceneClass {
                 class_id: ((place + k) % 365) as u32,
-                probability: 0.15,
+                probability: 0.05,
             })
             .collect(),
         objects: vec![

@@ -110,9 +110,56 @@ pub fn dot(a: &[f32], b: &[f32]) -> f32 {
     (pairs[0] + pairs[2]) + (pairs[1] + pairs[3]) + tail
 }
 
+/// `[q₀ᵀrow, q₁ᵀrow, …]`: the dot products of one row with `Q` queries,
+/// reading the row once. SCAL compares every stored row with the query and
+/// its predecessors; fusing those products into one pass over the matrix
+/// keeps the scan bound by one read of memory instead of `Q`.
+pub fn multi_dot<const Q: usize>(queries: &[&[f32]; Q], row: &[f32]) -> [f32; Q] {
+    let n = queries.iter().fold(row.len(), |n, q| n.min(q.len()));
+    let full = n - n % 8;
+    let mut acc = [[0.0f32; 8]; Q];
+    for start in (0..full).step_by(8) {
+        let r: &[f32; 8] = row[start..start + 8].try_into().expect("8 lanes");
+        for (sums, q) in acc.iter_mut().zip(queries) {
+            let q: &[f32; 8] = q[start..start + 8].try_into().expect("8 lanes");
+            for lane in 0..8 {
+                sums[lane] += q[lane] * r[lane];
+            }
+        }
+    }
+    let mut out = [0.0f32; Q];
+    for ((o, sums), q) in out.iter_mut().zip(&acc).zip(queries) {
+        let tail: f32 = q[full..n]
+            .iter()
+            .zip(&row[full..n])
+            .map(|(x, y)| x * y)
+            .sum();
+        let pairs = [
+            sums[0] + sums[4],
+            sums[1] + sums[5],
+            sums[2] + sums[6],
+            sums[3] + sums[7],
+        ];
+        *o = (pairs[0] + pairs[2]) + (pairs[1] + pairs[3]) + tail;
+    }
+    out
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn multi_dot_equals_separate_dots() {
+        for dim in [1, 7, 8, 9, 64, 133] {
+            let row: Vec<f32> = (0..dim).map(|i| (i as f32 * 0.37).sin()).collect();
+            let q0: Vec<f32> = (0..dim).map(|i| (i as f32 * 0.11).cos()).collect();
+            let q1: Vec<f32> = (0..dim).map(|i| 1.0 / (1.0 + i as f32)).collect();
+            let [a, b] = multi_dot(&[&q0, &q1], &row);
+            assert_eq!(a, dot(&q0, &row), "dim {dim}");
+            assert_eq!(b, dot(&q1, &row), "dim {dim}");
+        }
+    }
 
     #[test]
     fn push_row_set_row() {

@@ -6,12 +6,17 @@
 //! and the candidate's short histories (following each side's predecessor
 //! chain). Only the top `K` by `S_s` go on to the object and text layers, and
 //! they are selected with a partial sort, so the pass stays `O(N·d)`.
+//!
+//! The descriptor products of every row with the query and its (up to two)
+//! predecessors are computed in one fused read of the matrix; a candidate's
+//! temporal terms are then looked up at its predecessors' rows. Scene
+//! compatibility uses the query side prepared once ([`SceneProfile`]).
 
 use std::cmp::Ordering;
 
 use crate::keyframe::{Features, SceneClass};
 use crate::vpr::clip01;
-use crate::vpr::matrix::dot;
+use crate::vpr::matrix::{dot, multi_dot, DescriptorMatrix};
 use crate::vpr::memory::KeyframeMemory;
 use crate::vpr::params::VprParams;
 
@@ -24,18 +29,77 @@ pub fn cosine(a: &[f32], b: &[f32]) -> f32 {
 /// classes present in both sparse lists, clamped to [0, 1]; `None` when
 /// either list is empty (no scene model ran).
 pub fn scene_compatibility(a: &[SceneClass], b: &[SceneClass]) -> Option<f32> {
-    if a.is_empty() || b.is_empty() {
-        return None;
+    SceneProfile::new(a).compatibility(b)
+}
+
+/// One side of `C_cat` prepared once per query, so that comparing it with
+/// each of the many candidates costs one table lookup per candidate class,
+/// and a square root only for the classes both share (a scan with a lookup
+/// by search or a square root per class was most of SCAL's time). Scene
+/// models have a few hundred classes (Places365, ImageNet), so the table is
+/// dense, indexed by class id; ids from [`SceneProfile::DENSE_LIMIT`] up
+/// fall back to a sorted list and binary search.
+#[derive(Debug, Clone, PartialEq)]
+pub struct SceneProfile {
+    /// `sqrt(p)` by class id, 0 for absent classes; empty when sparse.
+    dense: Vec<f32>,
+    /// `(class id, sqrt(p))` sorted by class id; empty when dense.
+    sparse: Vec<(u32, f32)>,
+}
+
+impl SceneProfile {
+    /// Class ids below this are looked up in a dense table.
+    pub const DENSE_LIMIT: u32 = 1 << 16;
+
+    pub fn new(classes: &[SceneClass]) -> SceneProfile {
+        let mut sparse: Vec<(u32, f32)> = classes
+            .iter()
+            .map(|c| (c.class_id, clip01(c.probability).sqrt()))
+            .collect();
+        sparse.sort_unstable_by_key(|&(class, _)| class);
+        sparse.dedup_by_key(|&mut (class, _)| class);
+        match sparse.last() {
+            Some(&(max, _)) if max < Self::DENSE_LIMIT => {
+                let mut dense = vec![0.0; max as usize + 1];
+                for &(class, sqrt_p) in &sparse {
+                    dense[class as usize] = sqrt_p;
+                }
+                SceneProfile {
+                    dense,
+                    sparse: Vec::new(),
+                }
+            }
+            _ => SceneProfile {
+                dense: Vec::new(),
+                sparse,
+            },
+        }
     }
-    let bc: f32 = a
-        .iter()
-        .filter_map(|x| {
-            b.iter()
-                .find(|y| y.class_id == x.class_id)
-                .map(|y| (clip01(x.probability) * clip01(y.probability)).sqrt())
-        })
-        .sum();
-    Some(clip01(bc))
+
+    fn sqrt_p(&self, class: u32) -> f32 {
+        if self.sparse.is_empty() {
+            self.dense.get(class as usize).copied().unwrap_or(0.0)
+        } else {
+            self.sparse
+                .binary_search_by_key(&class, |&(c, _)| c)
+                .map_or(0.0, |i| self.sparse[i].1)
+        }
+    }
+
+    /// `C_cat` of this side and `other`; `None` when either has no classes.
+    pub fn compatibility(&self, other: &[SceneClass]) -> Option<f32> {
+        if (self.dense.is_empty() && self.sparse.is_empty()) || other.is_empty() {
+            return None;
+        }
+        let mut bc = 0.0f32;
+        for c in other {
+            let sqrt_q = self.sqrt_p(c.class_id);
+            if sqrt_q > 0.0 {
+                bc += sqrt_q * clip01(c.probability).sqrt();
+            }
+        }
+        Some(clip01(bc))
+    }
 }
 
 /// `s̃_e = s_e (1 + λ_c C_cat) / (1 + λ_c)`.
@@ -77,28 +141,32 @@ pub struct ScalHit {
 ///
 /// `C_{i−j}` follows `predecessor` `j` times; `k` is 1 plus the number of
 /// steps for which both `Q_{t−j}` and `C_{i−j}` exist, contiguous from
-/// `j = 0`, at most `alpha.len()`. The history must not be empty.
+/// `j = 0`, at most `alpha.len()`. The query side comes prepared, one entry
+/// per available query observation (at least one): `scenes[j]` is the scene
+/// profile of `Q_{t−j}` and `dots[r][j]` is `ê_{Q_{t−j}}ᵀ ê_r`, from
+/// [`history_dots`].
 fn scal_hit<M: KeyframeMemory + ?Sized>(
     params: &VprParams,
-    history: &[&Features],
     memory: &M,
+    scenes: &[SceneProfile],
+    dots: &[[f32; STEPS]],
     row: usize,
 ) -> ScalHit {
     let descriptors = memory.descriptors();
-    let steps = params.alpha.len().min(history.len());
+    let steps = STEPS.min(scenes.len());
     let (mut num, mut den) = (0.0f32, 0.0f32);
     let (mut first_cos, mut first_cat) = (0.0, None);
     let mut depth = 0;
     let mut c_row = row;
-    for (j, q) in history.iter().enumerate().take(steps) {
+    for j in 0..steps {
         if j > 0 {
             match memory.predecessor(c_row) {
                 Some(p) if p < descriptors.len() => c_row = p,
                 _ => break,
             }
         }
-        let s_e = cosine(&q.descriptor, descriptors.row(c_row));
-        let c_cat = scene_compatibility(&q.scene, memory.scene(c_row));
+        let s_e = clip01(dots[c_row][j]);
+        let c_cat = scenes[j].compatibility(memory.scene(c_row));
         if j == 0 {
             first_cos = s_e;
             first_cat = c_cat;
@@ -133,12 +201,49 @@ pub fn scal_scores<M: KeyframeMemory + ?Sized>(
     if query.history.is_empty() {
         return Vec::new();
     }
+    let dots = history_dots(&query.history, memory.descriptors());
+    let scenes: Vec<SceneProfile> = query
+        .history
+        .iter()
+        .take(STEPS)
+        .map(|q| SceneProfile::new(&q.scene))
+        .collect();
     let mut hits: Vec<ScalHit> = (0..memory.descriptors().len())
         .filter(|&row| eligible(row))
-        .map(|row| scal_hit(params, &query.history, memory, row))
+        .map(|row| scal_hit(params, memory, &scenes, &dots, row))
         .collect();
     top_k(&mut hits, params.top_k);
     hits
+}
+
+/// Temporal steps SCAL can use: the length of `α`.
+const STEPS: usize = 3;
+
+/// `dots[r][j] = ê_{Q_{t−j}}ᵀ ê_r` for every row `r` and every available
+/// query observation `j < 3` (0 where the query has no such observation),
+/// in one pass over the matrix: every row is read once, whatever the
+/// temporal depth.
+fn history_dots(history: &[&Features], matrix: &DescriptorMatrix) -> Vec<[f32; STEPS]> {
+    let rows = (0..matrix.len()).map(|r| matrix.row(r));
+    let q = |j: usize| history[j].descriptor.as_slice();
+    match history.len() {
+        0 => Vec::new(),
+        1 => rows
+            .map(|row| {
+                let [a] = multi_dot(&[q(0)], row);
+                [a, 0.0, 0.0]
+            })
+            .collect(),
+        2 => rows
+            .map(|row| {
+                let [a, b] = multi_dot(&[q(0), q(1)], row);
+                [a, b, 0.0]
+            })
+            .collect(),
+        _ => rows
+            .map(|row| multi_dot(&[q(0), q(1), q(2)], row))
+            .collect(),
+    }
 }
 
 /// Keeps the best `k` hits in ranking order: `O(N + k log k)`.
@@ -160,6 +265,38 @@ mod tests {
     use crate::vpr::memory::VecMemory;
     use crate::vpr::testing::{close, features, scene_strategy, unit_vector};
     use proptest::prelude::*;
+
+    /// SCAL for one row written the plain way, one `cosine` per pair, as
+    /// the reference the fused scan must reproduce exactly.
+    fn reference_hit(
+        params: &VprParams,
+        history: &[&Features],
+        m: &VecMemory,
+        row: usize,
+    ) -> ScalHit {
+        let (mut num, mut den, mut depth) = (0.0f32, 0.0f32, 0);
+        let (mut first_cos, mut first_cat) = (0.0, None);
+        let mut c_row = Some(row);
+        for (j, q) in history.iter().enumerate().take(params.alpha.len()) {
+            let Some(c) = c_row else { break };
+            let s_e = cosine(&q.descriptor, m.descriptors().row(c));
+            let c_cat = scene_compatibility(&q.scene, m.scene(c));
+            if j == 0 {
+                (first_cos, first_cat) = (s_e, c_cat);
+            }
+            num += params.alpha[j] * modulated(s_e, c_cat, params.lambda_c);
+            den += params.alpha[j];
+            depth = j + 1;
+            c_row = m.predecessor(c);
+        }
+        ScalHit {
+            row,
+            score: clip01(num / den),
+            cosine: first_cos,
+            scene_compatibility: first_cat,
+            depth,
+        }
+    }
 
     #[test]
     fn cosine_is_clipped() {
@@ -186,6 +323,12 @@ mod tests {
         let a = sc(&[(1, 0.6), (2, 0.4)]);
         let b = sc(&[(3, 0.5), (1, 0.5)]);
         assert!(close(scene_compatibility(&a, &b).unwrap(), 0.547723));
+        // Class ids beyond the dense table take the sparse path:
+        // sqrt(0.4 · 0.9) = 0.6, and sqrt(0.6 · 0.6) = 0.6.
+        let far = sc(&[(1, 0.6), (u32::MAX, 0.4)]);
+        let far2 = sc(&[(u32::MAX, 0.9)]);
+        assert!(close(scene_compatibility(&far, &far2).unwrap(), 0.6));
+        assert!(close(scene_compatibility(&far, &a).unwrap(), 0.6));
         // Identical: sqrt(.64²) + sqrt(.36²) = 1.
         let c = sc(&[(4, 0.64), (5, 0.36)]);
         assert!(close(scene_compatibility(&c, &c).unwrap(), 1.0));
@@ -344,7 +487,7 @@ mod tests {
 
             let mut all: Vec<ScalHit> = (0..m.descriptors().len())
                 .filter(|&r| eligible(r))
-                .map(|r| scal_hit(&params, &query.history, &m, r))
+                .map(|r| reference_hit(&params, &query.history, &m, r))
                 .collect();
             all.sort_by(by_score);
             all.truncate(k);
