@@ -11,6 +11,7 @@ use figment::providers::{Env, Format, Serialized, Toml};
 use figment::Figment;
 use serde::{Deserialize, Serialize};
 
+use crate::perception::config::PerceptionConfig;
 use crate::vpr::VprParams;
 
 /// The whole configuration.
@@ -21,6 +22,7 @@ pub struct Config {
     pub store: StoreConfig,
     pub query: QueryDefaults,
     pub vpr: VprParams,
+    pub perception: PerceptionConfig,
     pub log: LogConfig,
 }
 
@@ -146,6 +148,7 @@ impl Config {
         self.vpr
             .validate()
             .map_err(|e| ConfigError::Invalid(format!("vpr.{e}")))?;
+        self.perception.validate().map_err(ConfigError::Invalid)?;
         if self.store.scene_top_k == 0 {
             return Err(ConfigError::Invalid(
                 "store.scene_top_k must be at least 1".into(),

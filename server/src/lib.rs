@@ -3,6 +3,7 @@
 //! Layers, each depending only on those below it:
 //! - [`api`]: the tonic service, request validation, proto ⇄ domain conversion;
 //! - [`pipeline`]: the orchestration of one request over the store and scoring;
+//! - [`perception`]: the ONNX models that turn images into features;
 //! - [`vpr`]: HuMem-VPR scoring and ranking, pure functions over plain data;
 //! - [`store`]: durable sled storage and the in-memory search index;
 //! - [`keyframe`]: the semantic keyframe all of them speak.
@@ -14,6 +15,7 @@ pub mod api;
 pub mod cli;
 pub mod config;
 pub mod keyframe;
+pub mod perception;
 pub mod pipeline;
 pub mod server;
 pub mod store;

@@ -9,6 +9,7 @@ use tokio_stream::wrappers::TcpListenerStream;
 use crate::api::validate::Limits;
 use crate::api::PlaceRecognitionService;
 use crate::config::Config;
+use crate::perception::Perception;
 use crate::proto::place_recognition_server::PlaceRecognitionServer;
 use crate::store::Store;
 
@@ -33,7 +34,20 @@ pub async fn serve(config: Config) -> anyhow::Result<()> {
         threshold: config.vpr.tau_s,
         top_n: config.vpr.max_candidates,
     };
-    let service = PlaceRecognitionService::new(store.clone(), config.vpr.clone(), limits);
+    let perception = if config.perception.enabled {
+        let perception_config = config.perception.clone();
+        let top_k = config.store.scene_top_k;
+        let perception = tokio::task::spawn_blocking(move || Perception::load(&perception_config, top_k))
+            .await
+            .context("loading the perception models")?
+            .context("loading the perception models (set perception.enabled = false to serve precomputed features only)")?;
+        Some(perception)
+    } else {
+        tracing::warn!("perception disabled: requests with images will be refused");
+        None
+    };
+    let service =
+        PlaceRecognitionService::new(store.clone(), config.vpr.clone(), limits, perception);
     let max = config.server.max_message_bytes;
     let api = PlaceRecognitionServer::new(service)
         .max_decoding_message_size(max)

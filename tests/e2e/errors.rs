@@ -8,8 +8,9 @@ use crate::harness::Server;
 use crate::scenes::{self, World};
 
 fn features(kf: &mut proto::Keyframe) -> &mut proto::Features {
-    match kf.content.as_mut().unwrap() {
-        proto::keyframe::Content::Features(f) => f,
+    match kf.content.as_mut() {
+        Some(proto::keyframe::Content::Features(f)) => f,
+        _ => panic!("keyframe without features"),
     }
 }
 
@@ -31,7 +32,7 @@ async fn bad_requests_are_refused_with_the_field_named_and_change_nothing() {
         ("keyframe.frame_id: required", Box::new(|k| k.frame_id = None)),
         ("keyframe.map_id: required", Box::new(|k| k.map_id = None)),
         ("keyframe.pose: required", Box::new(|k| k.pose = None)),
-        ("keyframe.features: required", Box::new(|k| k.content = None)),
+        ("keyframe.features: required (or an image)", Box::new(|k| k.content = None)),
         ("keyframe.timestamp: not a finite number", Box::new(|k| k.timestamp = f64::INFINITY)),
         (
             "keyframe.pose.rotation: quaternion has zero length",

@@ -9,6 +9,25 @@ use std::time::Duration;
 use humem::proto::place_recognition_client::PlaceRecognitionClient;
 use tonic::transport::Channel;
 
+/// The repository's models folder, filled by `scripts/setup-models.sh`.
+pub fn models_dir() -> PathBuf {
+    Path::new(env!("CARGO_MANIFEST_DIR")).join("../models")
+}
+
+/// The shared data sets, if this checkout has `../shared` beside it.
+pub fn datasets() -> Option<PathBuf> {
+    let dir = Path::new(env!("CARGO_MANIFEST_DIR")).join("../../shared/datasets");
+    if dir.is_dir() {
+        Some(dir)
+    } else {
+        eprintln!(
+            "skipped: {} is absent (the shared data sets are not beside this checkout)",
+            dir.display()
+        );
+        None
+    }
+}
+
 /// A running `humem serve`.
 pub struct Server {
     child: Option<Child>,
@@ -22,14 +41,23 @@ impl Server {
         Self::start_with(data_dir, &[])
     }
 
+    /// Starts the server with the perception models installed by
+    /// `scripts/setup-models.sh`.
+    pub fn start_with_models(data_dir: &Path) -> Server {
+        Self::start_with(data_dir, &["HUMEM_PERCEPTION__ENABLED=true"])
+    }
+
     /// Starts the server with extra `serve` arguments or `KEY=VALUE`
-    /// environment settings (those containing `=`).
+    /// environment settings (those containing `=`). Perception is off unless
+    /// asked for: most tests send precomputed features and start faster.
     pub fn start_with(data_dir: &Path, extra: &[&str]) -> Server {
         let mut command = Command::new(env!("CARGO_BIN_EXE_humem"));
         command
             .args(["serve", "--listen", "127.0.0.1:0", "--data-dir"])
             .arg(data_dir)
             .env("RUST_LOG", "warn")
+            .env("HUMEM_PERCEPTION__ENABLED", "false")
+            .env("HUMEM_PERCEPTION__MODELS_DIR", models_dir())
             .env_remove("HUMEM_CONFIG")
             .stdout(Stdio::piped())
             .stderr(Stdio::inherit());

@@ -8,5 +8,6 @@ mod scenes;
 mod cli;
 mod durability;
 mod errors;
+mod images;
 mod maintenance;
 mod retrieval;

@@ -245,9 +245,9 @@ async fn grounded_text_breaks_a_tie_between_look_alike_places() {
     let mut query = query_stored("r", "s", 0);
     query.keyframe_id = None;
     query.frame_id = Some(5000);
-    query.content = corridor(9, "ROOM 3.04").content.map(|c| match c {
-        proto::keyframe::Content::Features(f) => proto::query_request::Content::Features(f),
-    });
+    query.content = Some(proto::query_request::Content::Features(
+        scenes::features_of(&corridor(9, "ROOM 3.04")),
+    ));
     let full = client.query(query.clone()).await.unwrap().into_inner();
     assert_eq!(full.candidates[0].keyframe_id, 2);
     let e = full.candidates[0].evidence.as_ref().unwrap();

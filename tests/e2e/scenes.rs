@@ -162,7 +162,7 @@ pub fn loop_drive(
 pub fn features_of(kf: &proto::Keyframe) -> proto::Features {
     match &kf.content {
         Some(proto::keyframe::Content::Features(f)) => f.clone(),
-        None => panic!("keyframe without features"),
+        _ => panic!("keyframe without features"),
     }
 }
 

@@ -3,7 +3,11 @@
 
 use tonic::Status;
 
-use crate::keyframe::Pose;
+use std::time::Duration;
+
+use crate::keyframe::{Features, Pose};
+use crate::perception::batcher::BatchError;
+use crate::perception::PerceptionError;
 use crate::pipeline::query::{Candidate, QueryError, QueryOutcome};
 use crate::proto;
 use crate::store::StoreError;
@@ -73,19 +77,75 @@ pub fn candidate(c: &Candidate) -> proto::Candidate {
     }
 }
 
+pub fn timings(timings: &[(&'static str, Duration)]) -> Vec<proto::StageTiming> {
+    timings
+        .iter()
+        .map(|(stage, d)| proto::StageTiming {
+            stage: (*stage).to_string(),
+            seconds: d.as_secs_f64(),
+        })
+        .collect()
+}
+
+pub fn features(f: &Features) -> proto::Features {
+    proto::Features {
+        descriptor: f.descriptor.clone(),
+        scene: f
+            .scene
+            .iter()
+            .map(|c| proto::SceneClass {
+                class_id: c.class_id,
+                probability: c.probability,
+            })
+            .collect(),
+        objects: f
+            .objects
+            .iter()
+            .map(|o| proto::ObjectObservation {
+                class_name: o.class_name.clone(),
+                confidence: o.confidence,
+                x: o.centroid[0],
+                y: o.centroid[1],
+                area: o.area,
+                texts: o
+                    .texts
+                    .iter()
+                    .map(|t| proto::TextObservation {
+                        text: t.text.clone(),
+                        confidence: t.confidence,
+                    })
+                    .collect(),
+            })
+            .collect(),
+    }
+}
+
+/// A perception failure as a status naming the image field.
+pub fn perception_status(field: &str, e: PerceptionError) -> Status {
+    match e {
+        PerceptionError::Image(e) => Status::invalid_argument(format!("{field}.{e}")),
+        PerceptionError::Model(BatchError::Busy { .. }) => {
+            let mut status = Status::resource_exhausted(e.to_string());
+            status.metadata_mut().insert(
+                "retry-after-ms",
+                tonic::metadata::MetadataValue::from(20u32),
+            );
+            status
+        }
+        PerceptionError::Model(BatchError::Stopped { .. }) => Status::unavailable(e.to_string()),
+        other => {
+            tracing::error!(error = %other, "perception failed");
+            Status::internal(other.to_string())
+        }
+    }
+}
+
 pub fn query_response(outcome: &QueryOutcome) -> proto::QueryResponse {
     proto::QueryResponse {
         candidates: outcome.candidates.iter().map(candidate).collect(),
         eligible_keyframes: outcome.eligible,
         used_predecessor_ids: outcome.used_predecessors.clone(),
-        timings: outcome
-            .timings
-            .iter()
-            .map(|(stage, d)| proto::StageTiming {
-                stage: (*stage).to_string(),
-                seconds: d.as_secs_f64(),
-            })
-            .collect(),
+        timings: timings(&outcome.timings),
     }
 }
 

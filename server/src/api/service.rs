@@ -6,12 +6,14 @@
 //! scan never stalls the async runtime.
 
 use std::sync::Arc;
+use std::time::Duration;
 
 use tonic::{Request, Response, Status};
 
 use super::convert;
-use super::validate::{self, InvalidField, Limits};
-use crate::keyframe::SemanticKeyframe;
+use super::validate::{self, InvalidField, Limits, Observation, PendingKeyframe};
+use crate::keyframe::{Features, SemanticKeyframe};
+use crate::perception::Perception;
 use crate::pipeline;
 use crate::proto;
 use crate::proto::place_recognition_server::PlaceRecognition;
@@ -24,15 +26,73 @@ pub struct PlaceRecognitionService {
     store: Store,
     params: Arc<VprParams>,
     limits: Limits,
+    /// The models; `None` when the server runs without perception.
+    perception: Option<Perception>,
 }
 
+/// Features of an observation and the time perception spent on them.
+type Resolved = (Features, Vec<(&'static str, Duration)>);
+
 impl PlaceRecognitionService {
-    pub fn new(store: Store, params: VprParams, limits: Limits) -> Self {
+    pub fn new(
+        store: Store,
+        params: VprParams,
+        limits: Limits,
+        perception: Option<Perception>,
+    ) -> Self {
         PlaceRecognitionService {
             store,
             params: Arc::new(params),
             limits,
+            perception,
         }
+    }
+
+    /// The features of an observation: as sent, or made from its image.
+    async fn resolve(&self, observation: Observation) -> Result<Resolved, Status> {
+        match observation {
+            Observation::Features(features) => Ok((features, Vec::new())),
+            Observation::Image(image, field) => {
+                let perception = self.perception.as_ref().ok_or_else(|| {
+                    Status::failed_precondition(format!(
+                        "{field}: this server runs without perception models (perception.enabled = false); send features instead"
+                    ))
+                })?;
+                let extracted = perception
+                    .extract(image)
+                    .await
+                    .map_err(|e| convert::perception_status(&field, e))?;
+                Ok((extracted.features, extracted.timings))
+            }
+        }
+    }
+
+    /// Resolves the observations of keyframes, all at once so that their
+    /// images share inferences.
+    async fn resolve_all(
+        &self,
+        pending: Vec<PendingKeyframe>,
+    ) -> Result<(Vec<SemanticKeyframe>, Vec<Resolved>), Status> {
+        let mut metas = Vec::with_capacity(pending.len());
+        let mut observations = Vec::with_capacity(pending.len());
+        for mut p in pending {
+            let observation = std::mem::replace(
+                &mut p.observation,
+                Observation::Features(Features::default()),
+            );
+            observations.push(observation);
+            metas.push(p);
+        }
+        let resolved = futures::future::join_all(observations.into_iter().map(|o| self.resolve(o)))
+            .await
+            .into_iter()
+            .collect::<Result<Vec<_>, Status>>()?;
+        let keyframes = metas
+            .into_iter()
+            .zip(&resolved)
+            .map(|(p, (features, _))| p.with_features(features.clone()))
+            .collect();
+        Ok((keyframes, resolved))
     }
 
     /// Refuses descriptors whose length differs from the store's, naming the
@@ -71,20 +131,21 @@ impl PlaceRecognition for PlaceRecognitionService {
         &self,
         request: Request<proto::InsertRequest>,
     ) -> Result<Response<proto::InsertResponse>, Status> {
-        let kf = validate::keyframe(
-            "keyframe",
-            request.get_ref().keyframe.as_ref(),
-            &self.limits,
-        )?;
+        let pending = validate::keyframe("keyframe", request.into_inner().keyframe, &self.limits)?;
         let span = tracing::Span::current();
-        span.record("robot", kf.key.robot_id.as_str());
-        span.record("session", kf.key.session_id.as_str());
-        span.record("keyframe", kf.key.keyframe_id);
-        self.check_dims(|_| "keyframe".into(), std::slice::from_ref(&kf))?;
-        let outcome = self.store.apply(Mutation::Insert(vec![kf])).await?;
+        span.record("robot", pending.key.robot_id.as_str());
+        span.record("session", pending.key.session_id.as_str());
+        span.record("keyframe", pending.key.keyframe_id);
+        let from_image = matches!(pending.observation, Observation::Image(..));
+        let (keyframes, mut resolved) = self.resolve_all(vec![pending]).await?;
+        self.check_dims(|_| "keyframe".into(), &keyframes)?;
+        let (features, timings) = resolved.pop().unwrap_or_default();
+        let outcome = self.store.apply(Mutation::Insert(keyframes)).await?;
         Ok(Response::new(proto::InsertResponse {
             replaced: outcome.replaced > 0,
             store_keyframes: outcome.store_keyframes,
+            timings: convert::timings(&timings),
+            features: from_image.then(|| convert::features(&features)),
         }))
     }
 
@@ -93,8 +154,9 @@ impl PlaceRecognition for PlaceRecognitionService {
         &self,
         request: Request<proto::InsertBatchRequest>,
     ) -> Result<Response<proto::InsertBatchResponse>, Status> {
-        let keyframes = validate::batch(&request.get_ref().keyframes, &self.limits)?;
-        tracing::Span::current().record("keyframes", keyframes.len());
+        let pending = validate::batch(request.into_inner().keyframes, &self.limits)?;
+        tracing::Span::current().record("keyframes", pending.len());
+        let (keyframes, _) = self.resolve_all(pending).await?;
         self.check_dims(|i| format!("keyframes[{i}]"), &keyframes)?;
         let outcome = self.store.apply(Mutation::Insert(keyframes)).await?;
         Ok(Response::new(proto::InsertBatchResponse {
@@ -108,7 +170,7 @@ impl PlaceRecognition for PlaceRecognitionService {
         &self,
         request: Request<proto::QueryRequest>,
     ) -> Result<Response<proto::QueryResponse>, Status> {
-        let spec = validate::query(request.get_ref(), &self.limits)?;
+        let mut spec = validate::query(request.into_inner(), &self.limits)?;
         let span = tracing::Span::current();
         span.record("robot", spec.session.robot_id.as_str());
         span.record("session", spec.session.session_id.as_str());
@@ -118,14 +180,22 @@ impl PlaceRecognition for PlaceRecognitionService {
         if let Some(frame) = spec.frame_id {
             span.record("frame", frame);
         }
+        let mut perception_timings = Vec::new();
+        if let Some(observation) = spec.observation.take() {
+            let (features, timings) = self.resolve(observation).await?;
+            spec.observation = Some(Observation::Features(features));
+            perception_timings = timings;
+        }
         let index = self.store.index_handle();
         let params = self.params.clone();
-        let outcome = tokio::task::spawn_blocking(move || {
+        let mut outcome = tokio::task::spawn_blocking(move || {
             let index = index.read();
             pipeline::query::run(&index, &params, &spec)
         })
         .await
         .map_err(|e| Status::internal(format!("query task failed: {e}")))??;
+        perception_timings.append(&mut outcome.timings);
+        outcome.timings = perception_timings;
         tracing::debug!(
             candidates = outcome.candidates.len(),
             eligible = outcome.eligible,

@@ -13,6 +13,7 @@ use crate::keyframe::{
     Features, KeyframeKey, ObjectObservation, Pose, SceneClass, SemanticKeyframe, SessionKey,
     TextObservation,
 };
+use crate::perception::ImageInput;
 use crate::proto;
 use crate::store::PoseUpdate;
 use crate::vpr::{Layers, MapRef, Scope};
@@ -77,7 +78,8 @@ pub struct QuerySpec {
     pub map_id: Option<u64>,
     pub frame_id: Option<u64>,
     pub keyframe_id: Option<u64>,
-    pub features: Option<Features>,
+    /// What the query shows, if sent (else the stored keyframe's features).
+    pub observation: Option<Observation>,
     pub predecessor_ids: Vec<u64>,
     pub scope: Scope,
     pub min_frame_gap: u64,
@@ -302,37 +304,127 @@ fn object(field: &str, o: &proto::ObjectObservation) -> Result<ObjectObservation
     })
 }
 
+/// What a keyframe or query shows, as sent.
+#[derive(Debug, Clone)]
+pub enum Observation {
+    Features(Features),
+    /// An image for the server's models, with the request field it came in
+    /// (for error messages).
+    Image(ImageInput, String),
+}
+
+/// A validated keyframe whose features may still have to be computed from
+/// its image.
+#[derive(Debug, Clone)]
+pub struct PendingKeyframe {
+    pub key: KeyframeKey,
+    pub frame_id: u64,
+    pub timestamp: f64,
+    pub map_id: u64,
+    pub pose: Pose,
+    pub observation: Observation,
+}
+
+impl PendingKeyframe {
+    /// The keyframe, with the features made of its observation.
+    pub fn with_features(self, features: Features) -> SemanticKeyframe {
+        SemanticKeyframe {
+            key: self.key,
+            frame_id: self.frame_id,
+            timestamp: self.timestamp,
+            map_id: self.map_id,
+            pose: self.pose,
+            features,
+        }
+    }
+}
+
+/// An image: the encoding is known and there are bytes; whether they decode
+/// is found out by perception.
+pub fn image(field: &str, image: proto::Image) -> Result<ImageInput> {
+    use crate::perception::image::Encoding;
+    use proto::image::Encoding as Wire;
+    let encoding = match enumeration::<Wire>(&format!("{field}.encoding"), image.encoding)? {
+        Wire::Unspecified => Encoding::Auto,
+        Wire::Jpeg => Encoding::Jpeg,
+        Wire::Png => Encoding::Png,
+        Wire::Gray8 => Encoding::Gray8,
+        Wire::Rgb8 => Encoding::Rgb8,
+        Wire::Bgr8 => Encoding::Bgr8,
+    };
+    if image.data.is_empty() {
+        return Err(invalid(format!("{field}.data"), "required (empty)"));
+    }
+    let raw = matches!(encoding, Encoding::Gray8 | Encoding::Rgb8 | Encoding::Bgr8);
+    if raw && (image.width == 0 || image.height == 0) {
+        return Err(invalid(
+            format!("{field}.width"),
+            "width and height are required for raw encodings",
+        ));
+    }
+    Ok(ImageInput {
+        encoding,
+        data: image.data,
+        width: image.width,
+        height: image.height,
+        stride: image.stride,
+    })
+}
+
+fn observation(
+    field: &str,
+    features_or_image: Option<std::result::Result<proto::Features, proto::Image>>,
+    limits: &Limits,
+) -> Result<Option<Observation>> {
+    Ok(match features_or_image {
+        Some(Ok(f)) => Some(Observation::Features(features(
+            &format!("{field}features"),
+            &f,
+            limits,
+        )?)),
+        Some(Err(img)) => {
+            let image_field = format!("{field}image");
+            Some(Observation::Image(image(&image_field, img)?, image_field))
+        }
+        None => None,
+    })
+}
+
 /// A keyframe to store.
 pub fn keyframe(
     field: &str,
-    k: Option<&proto::Keyframe>,
+    k: Option<proto::Keyframe>,
     limits: &Limits,
-) -> Result<SemanticKeyframe> {
+) -> Result<PendingKeyframe> {
     let k = required(field, k)?;
     let session = session(&format!("{field}."), &k.robot_id, &k.session_id)?;
     let keyframe_id = required(&format!("{field}.keyframe_id"), k.keyframe_id)?;
-    let features = match &k.content {
-        Some(proto::keyframe::Content::Features(f)) => {
-            features(&format!("{field}.features"), f, limits)?
-        }
-        None => return Err(invalid(format!("{field}.features"), "required")),
-    };
-    Ok(SemanticKeyframe {
+    let frame_id = required(&format!("{field}.frame_id"), k.frame_id)?;
+    let timestamp = finite(&format!("{field}.timestamp"), k.timestamp)?;
+    let map_id = required(&format!("{field}.map_id"), k.map_id)?;
+    let pose = pose(&format!("{field}.pose"), k.pose.as_ref())?;
+    let content = k.content.map(|c| match c {
+        proto::keyframe::Content::Features(f) => Ok(f),
+        proto::keyframe::Content::Image(i) => Err(i),
+    });
+    let observation = observation(&format!("{field}."), content, limits)?
+        .ok_or_else(|| invalid(format!("{field}.features"), "required (or an image)"))?;
+    Ok(PendingKeyframe {
         key: KeyframeKey {
             robot_id: session.robot_id,
             session_id: session.session_id,
             keyframe_id,
         },
-        frame_id: required(&format!("{field}.frame_id"), k.frame_id)?,
-        timestamp: finite(&format!("{field}.timestamp"), k.timestamp)?,
-        map_id: required(&format!("{field}.map_id"), k.map_id)?,
-        pose: pose(&format!("{field}.pose"), k.pose.as_ref())?,
-        features,
+        frame_id,
+        timestamp,
+        map_id,
+        pose,
+        observation,
     })
 }
 
 /// The keyframes of a batch; keys must be distinct.
-pub fn batch(keyframes: &[proto::Keyframe], limits: &Limits) -> Result<Vec<SemanticKeyframe>> {
+pub fn batch(keyframes: Vec<proto::Keyframe>, limits: &Limits) -> Result<Vec<PendingKeyframe>> {
     if keyframes.is_empty() {
         return Err(invalid("keyframes", "required (empty)"));
     }
@@ -344,7 +436,7 @@ pub fn batch(keyframes: &[proto::Keyframe], limits: &Limits) -> Result<Vec<Seman
     }
     let mut seen = HashSet::new();
     keyframes
-        .iter()
+        .into_iter()
         .enumerate()
         .map(|(i, k)| {
             let field = format!("keyframes[{i}]");
@@ -422,19 +514,20 @@ fn enumeration<E: TryFrom<i32>>(field: &str, value: i32) -> Result<E> {
 }
 
 /// A query.
-pub fn query(r: &proto::QueryRequest, limits: &Limits) -> Result<QuerySpec> {
+pub fn query(mut r: proto::QueryRequest, limits: &Limits) -> Result<QuerySpec> {
     let session = session("", &r.robot_id, &r.session_id)?;
-    let features = match &r.content {
-        Some(proto::query_request::Content::Features(f)) => Some(features("features", f, limits)?),
-        None => None,
-    };
-    if features.is_none() && r.keyframe_id.is_none() {
+    let content = r.content.take().map(|c| match c {
+        proto::query_request::Content::Features(f) => Ok(f),
+        proto::query_request::Content::Image(i) => Err(i),
+    });
+    let observation = observation("", content, limits)?;
+    if observation.is_none() && r.keyframe_id.is_none() {
         return Err(invalid(
             "features",
             "required unless keyframe_id names a stored keyframe",
         ));
     }
-    if features.is_some() && r.frame_id.is_none() && r.keyframe_id.is_none() {
+    if observation.is_some() && r.frame_id.is_none() && r.keyframe_id.is_none() {
         return Err(invalid("frame_id", "required"));
     }
     if r.predecessor_keyframe_ids.len() > MAX_PREDECESSORS {
@@ -518,7 +611,7 @@ pub fn query(r: &proto::QueryRequest, limits: &Limits) -> Result<QuerySpec> {
         map_id: r.map_id,
         frame_id: r.frame_id,
         keyframe_id: r.keyframe_id,
-        features,
+        observation,
         predecessor_ids: r.predecessor_keyframe_ids.clone(),
         scope,
         min_frame_gap: r.min_frame_gap.unwrap_or(limits.min_frame_gap),

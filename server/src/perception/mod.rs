@@ -1,0 +1,358 @@
+//! Perception: a camera image in, a semantic keyframe's features out.
+//!
+//! The configured ONNX models run through ONNX Runtime (`ort`), each behind
+//! a batcher so that concurrent requests share inferences: the global
+//! descriptor and scene context (one inference when one model gives both),
+//! and OCR, whose text regions become `sign` objects when no object
+//! detector is configured. Decoding and resizing run on tokio's blocking
+//! pool, inference on each model's own threads; the async runtime only
+//! waits. Knows nothing of gRPC.
+
+pub mod batcher;
+pub mod config;
+pub mod geometry;
+pub mod image;
+pub mod model;
+pub mod ocr;
+pub mod runtime;
+pub mod yolo;
+
+use std::sync::Arc;
+use std::time::{Duration, Instant};
+
+use ::image::RgbImage;
+
+use crate::keyframe::{Features, ObjectObservation, SceneClass, TextObservation};
+use batcher::{BatchError, Batcher};
+use config::{ImageModelConfig, PerceptionConfig};
+use image::{EncodedImage, ImageError};
+use model::ImageModel;
+use ocr::{Ocr, OcrModels, OcrTimes};
+use runtime::RuntimeError;
+
+/// An image as received, owning its bytes.
+#[derive(Debug, Clone)]
+pub struct ImageInput {
+    pub encoding: image::Encoding,
+    pub data: Vec<u8>,
+    pub width: u32,
+    pub height: u32,
+    pub stride: u32,
+}
+
+impl ImageInput {
+    fn encoded(&self) -> EncodedImage<'_> {
+        EncodedImage {
+            encoding: self.encoding,
+            data: &self.data,
+            width: self.width,
+            height: self.height,
+            stride: self.stride,
+        }
+    }
+}
+
+/// Features made from an image, with the time each stage took.
+#[derive(Debug, Clone)]
+pub struct Extracted {
+    pub features: Features,
+    pub timings: Vec<(&'static str, Duration)>,
+}
+
+/// Why an image could not be turned into features.
+#[derive(Debug, Clone, thiserror::Error)]
+pub enum PerceptionError {
+    /// The client's image is unusable.
+    #[error(transparent)]
+    Image(#[from] ImageError),
+    /// A model is overloaded, stopped or failed.
+    #[error(transparent)]
+    Model(#[from] BatchError),
+    /// A model's output is not what its role needs.
+    #[error("{0}")]
+    Output(String),
+}
+
+/// One model over whole images, with its preprocessing.
+#[derive(Clone)]
+struct ImageRole {
+    batcher: Batcher<ImageModel>,
+    config: ImageModelConfig,
+}
+
+/// The loaded models.
+#[derive(Clone)]
+pub struct Perception {
+    /// Gives the descriptor, and the scene when `scene_in_global`.
+    global: ImageRole,
+    scene_in_global: bool,
+    /// A separate scene model.
+    scene: Option<ImageRole>,
+    ocr: Option<Ocr>,
+    text_object_class: String,
+    scene_top_k: usize,
+}
+
+impl Perception {
+    /// Loads ONNX Runtime and every configured model.
+    pub fn load(config: &PerceptionConfig, scene_top_k: usize) -> Result<Perception, RuntimeError> {
+        let library = runtime::library_path(config.onnxruntime.as_deref(), &config.models_dir);
+        let env = runtime::environment(&library)?;
+        let options = config.session_options();
+        let batching = config.batching();
+        let workers = config.workers.max(1);
+
+        let scene_in_global = config
+            .scene
+            .as_ref()
+            .is_some_and(|s| s.shares_input_with(&config.descriptor));
+        let load_role = |name: &'static str, m: &ImageModelConfig, outputs: Vec<String>| {
+            let path = config.resolve(&m.model);
+            let models = (0..workers)
+                .map(|_| {
+                    let session = runtime::session(&env, &path, options)?;
+                    ImageModel::new(
+                        name,
+                        session,
+                        &m.input,
+                        &outputs,
+                        [m.width as usize, m.height as usize],
+                    )
+                })
+                .collect::<Result<Vec<_>, RuntimeError>>()?;
+            tracing::info!(role = name, model = %path.display(), "model loaded");
+            Ok::<_, RuntimeError>(ImageRole {
+                batcher: Batcher::spawn(name, models, batching),
+                config: m.clone(),
+            })
+        };
+        let mut global_outputs = vec![config.descriptor.output.clone()];
+        if scene_in_global {
+            global_outputs.extend(config.scene.as_ref().map(|s| s.output.clone()));
+        }
+        let global = load_role("descriptor", &config.descriptor, global_outputs)?;
+        let scene = match &config.scene {
+            Some(s) if !scene_in_global => Some(load_role("scene", s, vec![s.output.clone()])?),
+            _ => None,
+        };
+        let ocr = match &config.ocr {
+            None => None,
+            Some(ocr_config) => {
+                let dictionary_path = config.resolve(&ocr_config.dictionary);
+                let dictionary = ocr::ctc::Dictionary::load(&dictionary_path).map_err(|e| {
+                    RuntimeError::Model {
+                        path: dictionary_path.clone(),
+                        message: e.to_string(),
+                    }
+                })?;
+                let sessions = (0..workers)
+                    .map(|_| {
+                        Ok((
+                            runtime::session(&env, &config.resolve(&ocr_config.detector), options)?,
+                            runtime::session(
+                                &env,
+                                &config.resolve(&ocr_config.recognizer),
+                                options,
+                            )?,
+                        ))
+                    })
+                    .collect::<Result<Vec<_>, RuntimeError>>()?;
+                let models = OcrModels::new(sessions, ocr_config, Arc::new(dictionary))?;
+                tracing::info!(role = "ocr", "models loaded");
+                Some(Ocr::new(models, ocr_config, batching))
+            }
+        };
+        Ok(Perception {
+            global,
+            scene_in_global,
+            scene,
+            ocr,
+            text_object_class: config
+                .ocr
+                .as_ref()
+                .map(|o| o.text_object_class.clone())
+                .unwrap_or_default(),
+            scene_top_k,
+        })
+    }
+
+    /// Turns an image into features: descriptor, scene distribution, and
+    /// objects with their text.
+    pub async fn extract(&self, input: ImageInput) -> Result<Extracted, PerceptionError> {
+        let mut timings = Vec::new();
+        let started = Instant::now();
+        let global_config = self.global.config.clone();
+        let scene_config = self.scene.as_ref().map(|s| s.config.clone());
+        let (image, global_input, scene_input) = tokio::task::spawn_blocking(move || {
+            let image = image::decode(&input.encoded())?;
+            let global_input = model_input(&image, &global_config);
+            let scene_input = scene_config.map(|c| model_input(&image, &c));
+            Ok::<_, ImageError>((Arc::new(image), global_input, scene_input))
+        })
+        .await
+        .map_err(|e| PerceptionError::Output(format!("decoding task failed: {e}")))??;
+        timings.push(("decode", started.elapsed()));
+
+        let global = self.global.batcher.infer(global_input);
+        let scene = async {
+            match (&self.scene, scene_input) {
+                (Some(role), Some(input)) => role.batcher.infer(input).await.map(Some),
+                _ => Ok(None),
+            }
+        };
+        let mut ocr_times = OcrTimes::default();
+        let text = async {
+            match &self.ocr {
+                Some(ocr) => ocr.read(image.clone(), None, &mut ocr_times).await,
+                None => Ok(Vec::new()),
+            }
+        };
+        let (global, scene, lines) = tokio::join!(global, scene, text);
+        let global = global?;
+        let scene = scene?;
+        let lines = lines?;
+        timings.push(("descriptor", global.inference + global.queued));
+
+        let mut outputs = global.output.0.into_iter();
+        let descriptor = descriptor(outputs.next())?;
+        let scene_probs = if self.scene_in_global {
+            outputs.next()
+        } else if let Some(scene) = scene {
+            timings.push(("scene", scene.inference + scene.queued));
+            scene.output.0.into_iter().next()
+        } else {
+            None
+        };
+        if self.ocr.is_some() {
+            timings.push(("ocr_det", ocr_times.detection));
+            timings.push(("ocr_rec", ocr_times.recognition));
+        }
+        let (w, h) = (image.width() as f32, image.height() as f32);
+        let objects = lines
+            .into_iter()
+            .map(|line| ObjectObservation {
+                class_name: self.text_object_class.clone(),
+                confidence: line.detection_score.clamp(0.0, 1.0),
+                centroid: {
+                    let [cx, cy] = line.rect.center();
+                    [(cx / w).clamp(0.0, 1.0), (cy / h).clamp(0.0, 1.0)]
+                },
+                area: (line.rect.area() / (w * h)).clamp(0.0, 1.0),
+                texts: vec![TextObservation {
+                    text: line.text,
+                    confidence: line.confidence.clamp(0.0, 1.0),
+                }],
+            })
+            .collect();
+        Ok(Extracted {
+            features: Features {
+                descriptor,
+                scene: scene_probs
+                    .map(|(_, p)| top_classes(&p, self.scene_top_k))
+                    .unwrap_or_default(),
+                objects,
+            },
+            timings,
+        })
+    }
+}
+
+/// The normalised input of an image model.
+fn model_input(image: &RgbImage, config: &ImageModelConfig) -> Vec<f32> {
+    let resized = image::resize(image, config.width, config.height);
+    let mut data = Vec::with_capacity(3 * (config.width * config.height) as usize);
+    image::append_chw(
+        &resized,
+        image::Channels::Rgb,
+        config.mean,
+        config.std,
+        &mut data,
+    );
+    data
+}
+
+/// The L2-normalised descriptor of a model output.
+fn descriptor(output: Option<(Vec<usize>, Vec<f32>)>) -> Result<Vec<f32>, PerceptionError> {
+    let (_, values) =
+        output.ok_or_else(|| PerceptionError::Output("descriptor model gave no output".into()))?;
+    let norm = values.iter().map(|v| v * v).sum::<f32>().sqrt();
+    if values.is_empty() || !norm.is_finite() || norm <= 0.0 {
+        return Err(PerceptionError::Output(
+            "descriptor model gave an empty, zero or non-finite descriptor".into(),
+        ));
+    }
+    Ok(values.iter().map(|v| v / norm).collect())
+}
+
+/// The `k` most probable classes of a probability vector. Outputs that are
+/// not probabilities (negative values or a sum above 1) are treated as
+/// logits and go through a softmax first.
+fn top_classes(values: &[f32], k: usize) -> Vec<SceneClass> {
+    let finite = values.iter().all(|v| v.is_finite());
+    if !finite || values.is_empty() {
+        return Vec::new();
+    }
+    let sum: f32 = values.iter().sum();
+    let probs: Vec<f32> = if values.iter().any(|&v| v < 0.0) || sum > 1.001 {
+        let max = values.iter().copied().fold(f32::MIN, f32::max);
+        let exp: Vec<f32> = values.iter().map(|v| (v - max).exp()).collect();
+        let total: f32 = exp.iter().sum();
+        exp.iter().map(|e| e / total).collect()
+    } else {
+        values.to_vec()
+    };
+    let mut classes: Vec<SceneClass> = probs
+        .iter()
+        .enumerate()
+        .filter(|(_, &p)| p > 0.0)
+        .map(|(i, &p)| SceneClass {
+            class_id: i as u32,
+            probability: p.min(1.0),
+        })
+        .collect();
+    classes.sort_by(|a, b| {
+        b.probability
+            .total_cmp(&a.probability)
+            .then(a.class_id.cmp(&b.class_id))
+    });
+    classes.truncate(k);
+    classes
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn top_classes_keeps_the_most_probable() {
+        let classes = top_classes(&[0.1, 0.6, 0.0, 0.3], 2);
+        assert_eq!(
+            classes,
+            vec![
+                SceneClass {
+                    class_id: 1,
+                    probability: 0.6
+                },
+                SceneClass {
+                    class_id: 3,
+                    probability: 0.3
+                }
+            ]
+        );
+        // Logits: softmax of (0, ln 3) = (0.25, 0.75).
+        let classes = top_classes(&[0.0, 3f32.ln(), -30.0], 5);
+        assert_eq!(classes[0].class_id, 1);
+        assert!((classes[0].probability - 0.75).abs() < 1e-5);
+        assert!(top_classes(&[f32::NAN], 3).is_empty());
+    }
+
+    #[test]
+    fn descriptors_are_normalised_and_checked() {
+        assert_eq!(
+            descriptor(Some((vec![2], vec![3.0, 4.0]))).unwrap(),
+            vec![0.6, 0.8]
+        );
+        assert!(descriptor(Some((vec![2], vec![0.0, 0.0]))).is_err());
+        assert!(descriptor(None).is_err());
+    }
+}

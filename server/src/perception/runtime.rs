@@ -1,0 +1,169 @@
+//! ONNX Runtime, loaded once per process, and sessions built on it.
+//!
+//! `ort` is used with `load-dynamic`: the shared library is the one the
+//! setup step took from the PyPI `onnxruntime` wheel, found from the
+//! configuration, `ORT_DYLIB_PATH`, or the models folder, in that order. ONNX
+//! Runtime allows one environment per process, so it lives in a `OnceLock`.
+//! Execution providers other than the CPU are opt-in (cargo features `cuda`
+//! and `tensorrt`) and fall back to the CPU with a warning when they cannot
+//! be registered, so a vehicle without a working GPU driver still serves.
+
+use std::path::{Path, PathBuf};
+use std::sync::OnceLock;
+
+use ort::session::builder::GraphOptimizationLevel;
+use ort::session::Session;
+use serde::{Deserialize, Serialize};
+
+/// The hardware a model runs on.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize, Default)]
+#[serde(rename_all = "lowercase")]
+pub enum ExecutionProvider {
+    #[default]
+    Cpu,
+    Cuda,
+    Tensorrt,
+}
+
+/// Errors of loading ONNX Runtime or a model.
+#[derive(Debug, Clone, thiserror::Error)]
+pub enum RuntimeError {
+    #[error("ONNX Runtime library not found at {0}; run scripts/setup-models.sh or set perception.onnxruntime / ORT_DYLIB_PATH")]
+    LibraryMissing(PathBuf),
+    #[error("loading ONNX Runtime from {path}: {message}")]
+    Library { path: PathBuf, message: String },
+    #[error("model file {0} does not exist; run scripts/setup-models.sh or fix the perception configuration")]
+    ModelMissing(PathBuf),
+    #[error("loading model {path}: {message}")]
+    Model { path: PathBuf, message: String },
+    #[error("model {model}: {message}")]
+    Run { model: String, message: String },
+}
+
+static ENVIRONMENT: OnceLock<Result<ort::environment::Environment, RuntimeError>> = OnceLock::new();
+
+/// Where the ONNX Runtime library is: `configured` if set, else
+/// `ORT_DYLIB_PATH`, else `<models_dir>/lib/libonnxruntime.so`.
+pub fn library_path(configured: Option<&Path>, models_dir: &Path) -> PathBuf {
+    if let Some(path) = configured {
+        return path.to_path_buf();
+    }
+    if let Some(path) = std::env::var_os("ORT_DYLIB_PATH") {
+        return PathBuf::from(path);
+    }
+    models_dir.join("lib").join(library_file_name())
+}
+
+fn library_file_name() -> &'static str {
+    if cfg!(target_os = "macos") {
+        "libonnxruntime.dylib"
+    } else if cfg!(windows) {
+        "onnxruntime.dll"
+    } else {
+        "libonnxruntime.so"
+    }
+}
+
+/// The process's ONNX Runtime environment, loading the library on first use.
+/// Later calls return the first result whatever `library` they name.
+pub fn environment(library: &Path) -> Result<ort::environment::Environment, RuntimeError> {
+    ENVIRONMENT
+        .get_or_init(|| {
+            if !library.exists() {
+                return Err(RuntimeError::LibraryMissing(library.to_path_buf()));
+            }
+            let error = |message: String| RuntimeError::Library {
+                path: library.to_path_buf(),
+                message,
+            };
+            let builder = ort::init_from(library).map_err(|e| error(e.to_string()))?;
+            let env = builder
+                .with_name("humem")
+                .build()
+                .map_err(|e| error(e.to_string()))?;
+            tracing::info!(library = %library.display(), "ONNX Runtime loaded");
+            Ok(env)
+        })
+        .clone()
+}
+
+/// Settings of the sessions of one model.
+#[derive(Debug, Clone, Copy)]
+pub struct SessionOptions {
+    pub provider: ExecutionProvider,
+    /// Threads ONNX Runtime may use inside one inference; 0 = its default.
+    pub intra_threads: usize,
+}
+
+/// Loads a model.
+pub fn session(
+    env: &ort::environment::Environment,
+    path: &Path,
+    options: SessionOptions,
+) -> Result<Session, RuntimeError> {
+    if !path.exists() {
+        return Err(RuntimeError::ModelMissing(path.to_path_buf()));
+    }
+    let error = |message: String| RuntimeError::Model {
+        path: path.to_path_buf(),
+        message,
+    };
+    let mut builder = Session::builder(env)
+        .map_err(|e| error(e.to_string()))?
+        .with_optimization_level(GraphOptimizationLevel::All)
+        .unwrap_or_else(|e| e.recover());
+    if options.intra_threads > 0 {
+        builder = builder
+            .with_intra_threads(options.intra_threads)
+            .map_err(|e| error(e.to_string()))?;
+    }
+    builder = with_provider(builder, options.provider, path);
+    builder
+        .commit_from_file(path)
+        .map_err(|e| error(e.to_string()))
+}
+
+/// Registers the configured execution provider, or says why not and stays
+/// on the CPU.
+fn with_provider(
+    builder: ort::session::builder::SessionBuilder,
+    provider: ExecutionProvider,
+    path: &Path,
+) -> ort::session::builder::SessionBuilder {
+    let dispatch: Option<ort::ep::ExecutionProviderDispatch> = match provider {
+        ExecutionProvider::Cpu => None,
+        #[cfg(feature = "cuda")]
+        ExecutionProvider::Cuda => Some(ort::ep::CUDA::default().build().error_on_failure()),
+        #[cfg(feature = "tensorrt")]
+        ExecutionProvider::Tensorrt => {
+            Some(ort::ep::TensorRT::default().build().error_on_failure())
+        }
+        #[allow(unreachable_patterns)]
+        other => {
+            tracing::warn!(
+                model = %path.display(),
+                provider = ?other,
+                "this build has no support for the configured execution provider (cargo feature `cuda` or `tensorrt`); running on the CPU"
+            );
+            None
+        }
+    };
+    let Some(dispatch) = dispatch else {
+        return builder;
+    };
+    match builder.with_execution_providers([dispatch]) {
+        Ok(builder) => {
+            tracing::info!(model = %path.display(), ?provider, "execution provider registered");
+            builder
+        }
+        Err(e) => {
+            tracing::warn!(
+                model = %path.display(),
+                ?provider,
+                error = %e,
+                "execution provider unavailable; running on the CPU"
+            );
+            e.recover()
+        }
+    }
+}

@@ -1,0 +1,291 @@
+//! Images through the real models: keyframes and queries sent as camera
+//! images, perceived by the server's ONNX models (EfficientNet-Lite0 GeM
+//! descriptor and ImageNet scene context, PP-OCRv5 text), then ranked.
+
+use std::collections::BTreeMap;
+use std::io::Cursor;
+use std::path::Path;
+
+use humem::proto;
+
+use crate::harness::{datasets, Server};
+
+/// An encoded image as the API takes it.
+fn image(data: Vec<u8>) -> proto::Image {
+    proto::Image {
+        encoding: proto::image::Encoding::Unspecified as i32,
+        data,
+        ..Default::default()
+    }
+}
+
+fn keyframe(robot: &str, id: u64, content: proto::Image) -> proto::Keyframe {
+    proto::Keyframe {
+        robot_id: robot.into(),
+        session_id: "s".into(),
+        keyframe_id: Some(id),
+        frame_id: Some(id),
+        timestamp: id as f64,
+        map_id: Some(0),
+        pose: Some(crate::scenes::pose(id as f64)),
+        content: Some(proto::keyframe::Content::Image(content)),
+    }
+}
+
+/// Black text on a white board, as a PNG.
+fn rendered_text(lines: &[&str]) -> Vec<u8> {
+    let font_path = "/usr/share/fonts/truetype/dejavu/DejaVuSans-Bold.ttf";
+    let font = ab_glyph::FontVec::try_from_vec(
+        std::fs::read(font_path).expect("DejaVu fonts (Debian fonts-dejavu-core)"),
+    )
+    .unwrap();
+    let mut img = image::RgbImage::from_pixel(640, 480, image::Rgb([235, 235, 228]));
+    for (i, line) in lines.iter().enumerate() {
+        imageproc::drawing::draw_text_mut(
+            &mut img,
+            image::Rgb([20, 20, 30]),
+            60,
+            80 + 140 * i as i32,
+            ab_glyph::PxScale::from(72.0),
+            &font,
+            line,
+        );
+    }
+    let mut png = Vec::new();
+    img.write_to(&mut Cursor::new(&mut png), image::ImageFormat::Png)
+        .unwrap();
+    png
+}
+
+fn texts(features: &proto::Features) -> Vec<String> {
+    features
+        .objects
+        .iter()
+        .flat_map(|o| o.texts.iter().map(|t| t.text.clone()))
+        .collect()
+}
+
+#[tokio::test(flavor = "multi_thread")]
+async fn rendered_text_is_read_back_and_grounds_a_match() {
+    let dir = tempfile::tempdir().unwrap();
+    let server = Server::start_with_models(dir.path());
+    let mut client = server.client().await;
+
+    let board = rendered_text(&["EXIT 12B", "Gate B-214"]);
+    let reply = client
+        .insert(proto::InsertRequest {
+            keyframe: Some(keyframe("r", 1, image(board.clone()))),
+        })
+        .await
+        .unwrap()
+        .into_inner();
+    let features = reply.features.expect("features of the image");
+    assert_eq!(
+        texts(&features),
+        vec!["EXIT 12B".to_string(), "Gate B-214".to_string()]
+    );
+    assert!(features.objects.iter().all(|o| o.class_name == "sign"));
+    // The first line sits in the upper part of the image, the second below.
+    assert!(features.objects[0].y < features.objects[1].y);
+    assert_eq!(features.descriptor.len(), 1280);
+    assert!(!features.scene.is_empty());
+    let stages: Vec<&str> = reply.timings.iter().map(|t| t.stage.as_str()).collect();
+    assert_eq!(stages, ["decode", "descriptor", "ocr_det", "ocr_rec"]);
+
+    // The same board seen again (as JPEG, from another robot) is found, and
+    // the text on it is part of the evidence.
+    let jpeg = {
+        let img = image::load_from_memory(&board).unwrap().to_rgb8();
+        let mut out = Vec::new();
+        img.write_to(&mut Cursor::new(&mut out), image::ImageFormat::Jpeg)
+            .unwrap();
+        out
+    };
+    let reply = client
+        .query(proto::QueryRequest {
+            robot_id: "other".into(),
+            frame_id: Some(0),
+            content: Some(proto::query_request::Content::Image(image(jpeg))),
+            ..Default::default()
+        })
+        .await
+        .unwrap()
+        .into_inner();
+    let top = &reply.candidates[0];
+    assert_eq!(top.keyframe_id, 1);
+    let evidence = top.evidence.as_ref().unwrap();
+    assert!(
+        evidence
+            .text_matches
+            .iter()
+            .any(|m| m.candidate_text == "EXIT 12B"),
+        "{evidence:?}"
+    );
+    let stages: Vec<&str> = reply.timings.iter().map(|t| t.stage.as_str()).collect();
+    assert_eq!(
+        stages,
+        [
+            "decode",
+            "descriptor",
+            "ocr_det",
+            "ocr_rec",
+            "scal",
+            "osrl",
+            "ogtl",
+            "fusion"
+        ]
+    );
+
+    // Raw frames as SLAM systems hold them work too; garbage does not.
+    let gray = image::load_from_memory(&board).unwrap().to_luma8();
+    let raw = proto::Image {
+        encoding: proto::image::Encoding::Gray8 as i32,
+        width: gray.width(),
+        height: gray.height(),
+        data: gray.into_raw(),
+        stride: 0,
+    };
+    let reply = client
+        .insert(proto::InsertRequest {
+            keyframe: Some(keyframe("r", 2, raw)),
+        })
+        .await
+        .unwrap()
+        .into_inner();
+    assert_eq!(texts(&reply.features.unwrap())[0], "EXIT 12B");
+    let status = client
+        .insert(proto::InsertRequest {
+            keyframe: Some(keyframe(
+                "r",
+                3,
+                image(b"definitely not a picture".to_vec()),
+            )),
+        })
+        .await
+        .unwrap_err();
+    assert_eq!(status.code(), tonic::Code::InvalidArgument);
+    assert_eq!(
+        status.message(),
+        "keyframe.image.data: neither JPEG nor PNG; set encoding for raw pixels"
+    );
+}
+
+#[tokio::test(flavor = "multi_thread")]
+async fn a_real_shop_sign_is_read() {
+    let Some(datasets) = datasets() else { return };
+    let dir = tempfile::tempdir().unwrap();
+    let server = Server::start_with_models(dir.path());
+    let photo = std::fs::read(datasets.join("town-dev/loop/sequence/000156.jpg")).unwrap();
+    let reply = server
+        .client()
+        .await
+        .insert(proto::InsertRequest {
+            keyframe: Some(keyframe("town", 156, image(photo))),
+        })
+        .await
+        .unwrap()
+        .into_inner();
+    let read = texts(&reply.features.unwrap()).join(" | ");
+    // The sign says "QUARRY LAUNDRY 49", in perspective on a facade.
+    assert!(read.to_uppercase().contains("LAUNDRY"), "read: {read}");
+}
+
+/// Ground truth of a `loop` data set: query index → earlier matching indices.
+fn loop_ground_truth(dir: &Path) -> (BTreeMap<u64, Vec<u64>>, u64) {
+    let text = std::fs::read_to_string(dir.join("ground_truth.json")).unwrap();
+    let json: serde_json::Value = serde_json::from_str(&text).unwrap();
+    let matches = json["matches"]
+        .as_object()
+        .unwrap()
+        .iter()
+        .map(|(q, refs)| {
+            let refs = refs
+                .as_array()
+                .unwrap()
+                .iter()
+                .map(|r| r.as_u64().unwrap())
+                .collect();
+            (q.parse().unwrap(), refs)
+        })
+        .collect();
+    (matches, json["min_frame_gap"].as_u64().unwrap_or(100))
+}
+
+/// Recall@1, Recall@5 and MRR (over the top 5) of ranked answers.
+fn recall(answers: &[(Vec<u64>, Vec<u64>)]) -> (f64, f64, f64) {
+    let n = answers.len() as f64;
+    let rank =
+        |(ranked, truth): &(Vec<u64>, Vec<u64>)| ranked.iter().position(|c| truth.contains(c));
+    let r1 = answers.iter().filter(|a| rank(a) == Some(0)).count() as f64 / n;
+    let r5 = answers
+        .iter()
+        .filter(|a| rank(a).is_some_and(|r| r < 5))
+        .count() as f64
+        / n;
+    let mrr = answers
+        .iter()
+        .map(|a| rank(a).map_or(0.0, |r| 1.0 / (r + 1) as f64))
+        .sum::<f64>()
+        / n;
+    (r1, r5, mrr)
+}
+
+#[tokio::test(flavor = "multi_thread")]
+async fn rtabmap_loop_revisits_are_recognised_from_images() {
+    let Some(datasets) = datasets() else { return };
+    let set = datasets.join("rtabmap-loop");
+    let (truth, min_gap) = loop_ground_truth(&set);
+    let dir = tempfile::tempdir().unwrap();
+    let server = Server::start_with_models(dir.path());
+    let mut client = server.client().await;
+
+    // The SLAM way: each frame is inserted as a keyframe, then asked about,
+    // so only earlier frames can answer.
+    let mut full = Vec::new();
+    let mut scal = Vec::new();
+    for index in 0..84u64 {
+        let photo = std::fs::read(set.join(format!("sequence/{index:06}.jpg"))).unwrap();
+        client
+            .insert(proto::InsertRequest {
+                keyframe: Some(keyframe("rtabmap", index, image(photo))),
+            })
+            .await
+            .unwrap();
+        let Some(refs) = truth.get(&index) else {
+            continue;
+        };
+        for (layers, answers) in [
+            (proto::Layers::Full, &mut full),
+            (proto::Layers::Scal, &mut scal),
+        ] {
+            let reply = client
+                .query(proto::QueryRequest {
+                    robot_id: "rtabmap".into(),
+                    session_id: "s".into(),
+                    keyframe_id: Some(index),
+                    min_frame_gap: Some(min_gap),
+                    threshold: Some(0.0),
+                    layers: layers as i32,
+                    ..Default::default()
+                })
+                .await
+                .unwrap()
+                .into_inner();
+            let ranked = reply.candidates.iter().map(|c| c.keyframe_id).collect();
+            answers.push((ranked, refs.clone()));
+        }
+    }
+    let (r1, r5, mrr) = recall(&full);
+    let (s1, s5, smrr) = recall(&scal);
+    eprintln!(
+        "rtabmap-loop over gRPC, {} queries, min gap {min_gap}:",
+        full.len()
+    );
+    eprintln!("  full  R@1 {r1:.3}  R@5 {r5:.3}  MRR {mrr:.3}");
+    eprintln!("  SCAL  R@1 {s1:.3}  R@5 {s5:.3}  MRR {smrr:.3}");
+    assert_eq!(full.len(), truth.len());
+    // The GeM descriptor of these models alone reaches R@1 0.95 here
+    // (measured in Python); the service must not lose that.
+    assert!(s1 >= 0.90, "SCAL R@1 {s1:.3}");
+    assert!(r1 >= 0.90, "full R@1 {r1:.3}");
+}
