@@ -284,8 +284,8 @@ async fn rtabmap_loop_revisits_are_recognised_from_images() {
     eprintln!("  full  R@1 {r1:.3}  R@5 {r5:.3}  MRR {mrr:.3}");
     eprintln!("  SCAL  R@1 {s1:.3}  R@5 {s5:.3}  MRR {smrr:.3}");
     assert_eq!(full.len(), truth.len());
-    // The GeM descriptor of these models alone reaches R@1 0.95 here
+    // The GeM descriptor of these models alone reaches R@1 0.955 here
     // (measured in Python); the service must not lose that.
-    assert!(s1 >= 0.90, "SCAL R@1 {s1:.3}");
-    assert!(r1 >= 0.90, "full R@1 {r1:.3}");
+    assert!(s1 >= 0.95, "SCAL R@1 {s1:.3}");
+    assert!(r1 >= 0.95, "full R@1 {r1:.3}");
 }

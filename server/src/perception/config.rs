@@ -19,6 +19,11 @@ use super::runtime::{ExecutionProvider, SessionOptions};
 const LITE_MEAN: [f32; 3] = [127.0 / 255.0; 3];
 const LITE_STD: [f32; 3] = [128.0 / 255.0; 3];
 const EFFICIENTNET: &str = "efficientnet-lite0/efficientnet_lite0.onnx";
+/// Input size of the default descriptor. Measured with the GeM descriptor
+/// alone (R@1 on corridor / rtabmap-loop / gardens-daynight): 224x224 gives
+/// 0.60 / 0.95 / 0.4, 384x288 gives 0.72 / 0.95 / 0.4, 512x384 gives
+/// 0.73 / 0.93 / 0.2, at about 0.5x the cost of 512x384.
+const DESCRIPTOR_SIZE: [u32; 2] = [384, 288];
 
 /// The `[perception]` section.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
@@ -72,8 +77,8 @@ impl Default for PerceptionConfig {
             descriptor: ImageModelConfig {
                 model: PathBuf::from(EFFICIENTNET),
                 input: "image".into(),
-                width: 512,
-                height: 384,
+                width: DESCRIPTOR_SIZE[0],
+                height: DESCRIPTOR_SIZE[1],
                 mean: LITE_MEAN,
                 std: LITE_STD,
                 output: "descriptor".into(),
@@ -81,8 +86,8 @@ impl Default for PerceptionConfig {
             scene: Some(ImageModelConfig {
                 model: PathBuf::from(EFFICIENTNET),
                 input: "image".into(),
-                width: 512,
-                height: 384,
+                width: DESCRIPTOR_SIZE[0],
+                height: DESCRIPTOR_SIZE[1],
                 mean: LITE_MEAN,
                 std: LITE_STD,
                 output: "scene".into(),

@@ -38,7 +38,7 @@ pub use matrix::{dot, DescriptorMatrix};
 pub use memory::{KeyframeMemory, VecMemory};
 pub use ogtl::{ogtl, text_profile, text_profile_in, OgtlResult, TextMatch, TextProfile};
 pub use osrl::{object_affinity, osrl, spatial_kernel, ObjectMatch, OsrlResult};
-pub use params::{Layers, VprParams};
+pub use params::{Layers, TemporalMode, VprParams};
 pub use rank::{rank, rank_timed, select, QueryObservation, RankedCandidate, StageTimes};
 pub use scal::{cosine, modulated, scal_scores, scene_compatibility, ScalHit, ScalQuery};
 pub use text::{distinctiveness, string_similarity};

@@ -18,7 +18,7 @@ use crate::keyframe::{Features, SceneClass};
 use crate::vpr::clip01;
 use crate::vpr::matrix::{dot, multi_dot, DescriptorMatrix};
 use crate::vpr::memory::KeyframeMemory;
-use crate::vpr::params::VprParams;
+use crate::vpr::params::{TemporalMode, VprParams};
 
 /// `s_e = clip(ê_Qᵀ ê_C, 0, 1)` for L2-normalised descriptors.
 pub fn cosine(a: &[f32], b: &[f32]) -> f32 {
@@ -155,7 +155,7 @@ fn scal_hit<M: KeyframeMemory + ?Sized>(
     let descriptors = memory.descriptors();
     let steps = STEPS.min(scenes.len());
     let (mut num, mut den) = (0.0f32, 0.0f32);
-    let (mut first_cos, mut first_cat) = (0.0, None);
+    let (mut first_cos, mut first_cat, mut current) = (0.0, None, 0.0);
     let mut depth = 0;
     let mut c_row = row;
     for j in 0..steps {
@@ -167,15 +167,19 @@ fn scal_hit<M: KeyframeMemory + ?Sized>(
         }
         let s_e = clip01(dots[c_row][j]);
         let c_cat = scenes[j].compatibility(memory.scene(c_row));
+        let s_tilde = modulated(s_e, c_cat, params.lambda_c);
         if j == 0 {
-            first_cos = s_e;
-            first_cat = c_cat;
+            (first_cos, first_cat, current) = (s_e, c_cat, s_tilde);
         }
-        num += params.alpha[j] * modulated(s_e, c_cat, params.lambda_c);
+        num += params.alpha[j] * s_tilde;
         den += params.alpha[j];
         depth = j + 1;
     }
-    let score = if den > 0.0 { clip01(num / den) } else { 0.0 };
+    let average = if den > 0.0 { num / den } else { 0.0 };
+    let score = clip01(match params.temporal {
+        TemporalMode::Average => average,
+        TemporalMode::Support => average.max(current),
+    });
     ScalHit {
         row,
         score,
@@ -275,23 +279,27 @@ mod tests {
         row: usize,
     ) -> ScalHit {
         let (mut num, mut den, mut depth) = (0.0f32, 0.0f32, 0);
-        let (mut first_cos, mut first_cat) = (0.0, None);
+        let (mut first_cos, mut first_cat, mut current) = (0.0, None, 0.0);
         let mut c_row = Some(row);
         for (j, q) in history.iter().enumerate().take(params.alpha.len()) {
             let Some(c) = c_row else { break };
             let s_e = cosine(&q.descriptor, m.descriptors().row(c));
             let c_cat = scene_compatibility(&q.scene, m.scene(c));
+            let s_tilde = modulated(s_e, c_cat, params.lambda_c);
             if j == 0 {
-                (first_cos, first_cat) = (s_e, c_cat);
+                (first_cos, first_cat, current) = (s_e, c_cat, s_tilde);
             }
-            num += params.alpha[j] * modulated(s_e, c_cat, params.lambda_c);
+            num += params.alpha[j] * s_tilde;
             den += params.alpha[j];
             depth = j + 1;
             c_row = m.predecessor(c);
         }
         ScalHit {
             row,
-            score: clip01(num / den),
+            score: clip01(match params.temporal {
+                TemporalMode::Average => num / den,
+                TemporalMode::Support => (num / den).max(current),
+            }),
             cosine: first_cos,
             scene_compatibility: first_cat,
             depth,
@@ -359,12 +367,41 @@ mod tests {
         m
     }
 
-    fn scores(history_len: usize, m: &VecMemory) -> Vec<ScalHit> {
+    /// The paper's temporal average.
+    fn paper() -> VprParams {
+        VprParams {
+            temporal: TemporalMode::Average,
+            ..VprParams::default()
+        }
+    }
+
+    fn scores_with(params: &VprParams, history_len: usize, m: &VecMemory) -> Vec<ScalHit> {
         let q = features(&[1.0, 0.0], &[], vec![]);
         let history = vec![&q; history_len];
-        let mut hits = scal_scores(&VprParams::default(), &ScalQuery { history }, m, &|_| true);
+        let mut hits = scal_scores(params, &ScalQuery { history }, m, &|_| true);
         hits.sort_by_key(|h| h.row);
         hits
+    }
+
+    fn scores(history_len: usize, m: &VecMemory) -> Vec<ScalHit> {
+        scores_with(&paper(), history_len, m)
+    }
+
+    #[test]
+    fn temporal_support_raises_but_never_lowers() {
+        let m = chain();
+        let hits = scores_with(&VprParams::default(), 3, &m);
+        // Row 2: average 0.58 < s̃_e 0.8, so 0.8.
+        assert!(close(hits[2].score, 0.8));
+        // Row 1: average 0.375 < 0.6.
+        assert!(close(hits[1].score, 0.6));
+        // A weak current pair with a strong history is raised:
+        // (0.5 · 0.6 + 0.3 · 1) / 0.8 = 0.75 > 0.6.
+        let mut m = VecMemory::new(2);
+        let r0 = m.push(features(&[1.0, 0.0], &[], vec![]), None);
+        m.push(features(&[0.6, 0.8], &[], vec![]), Some(r0));
+        let hits = scores_with(&VprParams::default(), 2, &m);
+        assert!(close(hits[1].score, 0.75));
     }
 
     #[test]
@@ -407,7 +444,7 @@ mod tests {
         let q0 = features(&[1.0, 0.0], &[(7, 1.0)], vec![]);
         let q1 = features(&[1.0, 0.0], &[(7, 1.0)], vec![]);
         let hits = scal_scores(
-            &VprParams::default(),
+            &paper(),
             &ScalQuery {
                 history: vec![&q0, &q1],
             },
