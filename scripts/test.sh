@@ -8,8 +8,9 @@ cd "$(dirname "$0")/.."
 
 echo "== models (scripts/setup-models.sh)"
 scripts/setup-models.sh
-echo "== model converter test"
+echo "== model tools tests"
 models/.venv/bin/python tools/test_efficientnet_to_onnx.py models
+models/.venv/bin/python tools/test_make_tiny_yolo.py
 echo "== cargo fmt --check"
 cargo fmt --all -- --check
 echo "== cargo clippy"

@@ -98,7 +98,9 @@ impl Default for LogConfig {
     fn default() -> Self {
         LogConfig {
             format: LogFormat::Plain,
-            filter: "info".into(),
+            // ONNX Runtime warns, harmlessly, about the stripped output shapes
+            // of the PP-OCR models each time they load.
+            filter: "info,ort::logging=error".into(),
         }
     }
 }

@@ -55,7 +55,7 @@ impl Server {
         command
             .args(["serve", "--listen", "127.0.0.1:0", "--data-dir"])
             .arg(data_dir)
-            .env("RUST_LOG", "warn")
+            .env("RUST_LOG", "warn,ort::logging=error")
             .env("HUMEM_PERCEPTION__ENABLED", "false")
             .env("HUMEM_PERCEPTION__MODELS_DIR", models_dir())
             .env_remove("HUMEM_CONFIG")

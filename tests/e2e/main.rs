@@ -6,6 +6,7 @@ mod harness;
 mod scenes;
 
 mod cli;
+mod detector;
 mod durability;
 mod errors;
 mod images;

@@ -13,6 +13,7 @@ pub mod config;
 pub mod geometry;
 pub mod image;
 pub mod model;
+pub mod objects;
 pub mod ocr;
 pub mod runtime;
 pub mod yolo;
@@ -27,6 +28,7 @@ use batcher::{BatchError, Batcher};
 use config::{ImageModelConfig, PerceptionConfig};
 use image::{EncodedImage, ImageError};
 use model::ImageModel;
+use objects::Detector;
 use ocr::{Ocr, OcrModels, OcrTimes};
 use runtime::RuntimeError;
 
@@ -89,6 +91,7 @@ pub struct Perception {
     /// A separate scene model.
     scene: Option<ImageRole>,
     ocr: Option<Ocr>,
+    detector: Option<Detector>,
     text_object_class: String,
     scene_top_k: usize,
 }
@@ -162,11 +165,17 @@ impl Perception {
                 Some(Ocr::new(models, ocr_config, batching))
             }
         };
+        let detector = config
+            .detector
+            .as_ref()
+            .map(|d| Detector::load(&env, config, d, batching))
+            .transpose()?;
         Ok(Perception {
             global,
             scene_in_global,
             scene,
             ocr,
+            detector,
             text_object_class: config
                 .ocr
                 .as_ref()
@@ -200,17 +209,11 @@ impl Perception {
                 _ => Ok(None),
             }
         };
-        let mut ocr_times = OcrTimes::default();
-        let text = async {
-            match &self.ocr {
-                Some(ocr) => ocr.read(image.clone(), None, &mut ocr_times).await,
-                None => Ok(Vec::new()),
-            }
-        };
-        let (global, scene, lines) = tokio::join!(global, scene, text);
+        let objects = self.objects(image.clone());
+        let (global, scene, objects) = tokio::join!(global, scene, objects);
         let global = global?;
         let scene = scene?;
-        let lines = lines?;
+        let (objects, object_timings) = objects?;
         timings.push(("descriptor", global.inference + global.queued));
 
         let mut outputs = global.output.0.into_iter();
@@ -223,27 +226,7 @@ impl Perception {
         } else {
             None
         };
-        if self.ocr.is_some() {
-            timings.push(("ocr_det", ocr_times.detection));
-            timings.push(("ocr_rec", ocr_times.recognition));
-        }
-        let (w, h) = (image.width() as f32, image.height() as f32);
-        let objects = lines
-            .into_iter()
-            .map(|line| ObjectObservation {
-                class_name: self.text_object_class.clone(),
-                confidence: line.detection_score.clamp(0.0, 1.0),
-                centroid: {
-                    let [cx, cy] = line.rect.center();
-                    [(cx / w).clamp(0.0, 1.0), (cy / h).clamp(0.0, 1.0)]
-                },
-                area: (line.rect.area() / (w * h)).clamp(0.0, 1.0),
-                texts: vec![TextObservation {
-                    text: line.text,
-                    confidence: line.confidence.clamp(0.0, 1.0),
-                }],
-            })
-            .collect();
+        timings.extend(object_timings);
         Ok(Extracted {
             features: Features {
                 descriptor,
@@ -254,6 +237,95 @@ impl Perception {
             },
             timings,
         })
+    }
+}
+
+impl Perception {
+    /// The objects of an image with the text read on them: the detector's
+    /// objects, with OCR inside those of text-bearing classes, or, without a
+    /// detector, the text regions themselves as objects.
+    async fn objects(
+        &self,
+        image: Arc<RgbImage>,
+    ) -> Result<(Vec<ObjectObservation>, Vec<(&'static str, Duration)>), PerceptionError> {
+        let (w, h) = (image.width() as f32, image.height() as f32);
+        let normalised = |[x, y]: [f32; 2], area: f32| {
+            (
+                [(x / w).clamp(0.0, 1.0), (y / h).clamp(0.0, 1.0)],
+                (area / (w * h)).clamp(0.0, 1.0),
+            )
+        };
+        let mut timings = Vec::new();
+        let Some(detector) = &self.detector else {
+            let Some(ocr) = &self.ocr else {
+                return Ok((Vec::new(), timings));
+            };
+            let mut times = OcrTimes::default();
+            let lines = ocr.read(image.clone(), None, &mut times).await?;
+            timings.push(("ocr_det", times.detection));
+            timings.push(("ocr_rec", times.recognition));
+            let objects = lines
+                .into_iter()
+                .map(|line| {
+                    let (centroid, area) = normalised(line.rect.center(), line.rect.area());
+                    ObjectObservation {
+                        class_name: self.text_object_class.clone(),
+                        confidence: line.detection_score.clamp(0.0, 1.0),
+                        centroid,
+                        area,
+                        texts: vec![TextObservation {
+                            text: line.text,
+                            confidence: line.confidence.clamp(0.0, 1.0),
+                        }],
+                    }
+                })
+                .collect();
+            return Ok((objects, timings));
+        };
+
+        let (detected, took) = detector.detect(image.clone()).await?;
+        timings.push(("detector", took));
+        // Text is read inside every text-bearing object, all at once.
+        let reads = detected.iter().map(|object| {
+            let image = image.clone();
+            async move {
+                let mut times = OcrTimes::default();
+                let lines = match &self.ocr {
+                    Some(ocr) if detector.reads_text_on(&object.class_name) => {
+                        ocr.read(image, Some(object.rect), &mut times).await?
+                    }
+                    _ => Vec::new(),
+                };
+                Ok::<_, BatchError>((lines, times))
+            }
+        });
+        let reads = futures::future::join_all(reads).await;
+        let mut slowest = OcrTimes::default();
+        let mut objects = Vec::with_capacity(detected.len());
+        for (object, read) in detected.into_iter().zip(reads) {
+            let (lines, times) = read?;
+            slowest.detection = slowest.detection.max(times.detection);
+            slowest.recognition = slowest.recognition.max(times.recognition);
+            let (centroid, area) = normalised(object.centroid, object.area);
+            objects.push(ObjectObservation {
+                class_name: object.class_name,
+                confidence: object.confidence,
+                centroid,
+                area,
+                texts: lines
+                    .into_iter()
+                    .map(|l| TextObservation {
+                        text: l.text,
+                        confidence: l.confidence.clamp(0.0, 1.0),
+                    })
+                    .collect(),
+            });
+        }
+        if self.ocr.is_some() {
+            timings.push(("ocr_det", slowest.detection));
+            timings.push(("ocr_rec", slowest.recognition));
+        }
+        Ok((objects, timings))
     }
 }
 
