@@ -12,6 +12,7 @@
 //! client and [`config`] the configuration.
 
 pub mod api;
+pub mod bench;
 pub mod cli;
 pub mod config;
 pub mod keyframe;

@@ -4,7 +4,7 @@
 use std::io::IsTerminal;
 
 use clap::Parser;
-use humem::cli::{Cli, Command};
+use humem::cli::{BenchCommand, Cli, Command};
 use humem::config::{Config, LogFormat};
 
 fn init_logging(format: LogFormat, filter: &str) {
@@ -28,6 +28,11 @@ async fn main() -> anyhow::Result<()> {
             let config = Config::load(cli.config.as_deref(), args.overrides())?;
             init_logging(config.log.format, &config.log.filter);
             humem::server::serve(config).await
+        }
+        Command::Bench(BenchCommand::Perception(args)) => {
+            let config = Config::load(cli.config.as_deref(), figment::Figment::new())?;
+            init_logging(LogFormat::Plain, "warn,ort::logging=error");
+            humem::bench::perception(config, args).await
         }
         command => {
             init_logging(LogFormat::Plain, "warn");

@@ -66,7 +66,7 @@ fn status_error(call: &str, status: tonic::Status) -> anyhow::Error {
 /// Runs a client command.
 pub async fn run_client(command: Command) -> anyhow::Result<()> {
     match command {
-        Command::Serve(_) => bail!("serve is not a client command"),
+        Command::Serve(_) | Command::Bench(_) => bail!("not a client command"),
         Command::Insert {
             server,
             file,

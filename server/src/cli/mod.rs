@@ -88,6 +88,17 @@ pub enum Command {
         #[command(flatten)]
         server: ServerArg,
     },
+    /// Measure the service's parts and print a table.
+    #[command(subcommand)]
+    Bench(BenchCommand),
+}
+
+/// What `humem bench` measures.
+#[derive(Debug, Subcommand)]
+pub enum BenchCommand {
+    /// The perception models: latency per batch size, and the throughput
+    /// gain of batching under concurrent clients against unbatched inference.
+    Perception(crate::bench::PerceptionBench),
 }
 
 #[derive(Debug, Clone, Copy, PartialEq, Eq, clap::ValueEnum)]

@@ -363,7 +363,12 @@ fn crop(image: &RgbImage, rect: Rect) -> RgbImage {
 /// top-left, top-right, bottom-right, bottom-left, image pixels), turned
 /// upright if it stands (as PaddleOCR does), and scaled to the
 /// recogniser's height keeping its aspect ratio, up to `max_width`.
-fn line_input(image: &RgbImage, quad: [[f32; 2]; 4], height: u32, max_width: u32) -> LineInput {
+pub(crate) fn line_input(
+    image: &RgbImage,
+    quad: [[f32; 2]; 4],
+    height: u32,
+    max_width: u32,
+) -> LineInput {
     let dist = |a: [f32; 2], b: [f32; 2]| (a[0] - b[0]).hypot(a[1] - b[1]);
     let cw = dist(quad[0], quad[1])
         .max(dist(quad[3], quad[2]))
