@@ -40,11 +40,16 @@ pub struct PerceptionConfig {
     /// `cpu`, `cuda` or `tensorrt` (the last two need the cargo feature of
     /// the same name; the CPU is the fallback).
     pub provider: ExecutionProvider,
-    /// Threads one inference may use (0: ONNX Runtime's default).
+    /// Threads one inference may use; 0 = half the machine's cores (at
+    /// least 1), since the descriptor and OCR models run at the same time
+    /// and oversubscribed cores slowed both in `humem bench perception`.
     pub intra_threads: usize,
     /// Sessions (and worker threads) per model.
     pub workers: usize,
-    /// Most images (or text lines) per inference.
+    /// Most images (or text lines) per inference; 0 = 1 on the CPU, 8 with
+    /// a GPU provider. On a CPU a batch costs about as much per image as
+    /// single inferences and only delays answers (see the README's
+    /// benchmark); GPUs are where batching pays.
     pub max_batch: usize,
     /// Longest a request waits for others to share its inference, in ms.
     pub max_wait_ms: u64,
@@ -71,7 +76,7 @@ impl Default for PerceptionConfig {
             provider: ExecutionProvider::Cpu,
             intra_threads: 0,
             workers: 1,
-            max_batch: 8,
+            max_batch: 0,
             max_wait_ms: 2,
             queue: 256,
             descriptor: ImageModelConfig {
@@ -110,7 +115,11 @@ impl PerceptionConfig {
 
     pub fn batching(&self) -> BatchConfig {
         BatchConfig {
-            max_batch: self.max_batch.max(1),
+            max_batch: match (self.max_batch, self.provider) {
+                (0, ExecutionProvider::Cpu) => 1,
+                (0, _) => 8,
+                (n, _) => n,
+            },
             max_wait: Duration::from_millis(self.max_wait_ms),
             queue: self.queue.max(1),
         }
@@ -119,7 +128,10 @@ impl PerceptionConfig {
     pub fn session_options(&self) -> SessionOptions {
         SessionOptions {
             provider: self.provider,
-            intra_threads: self.intra_threads,
+            intra_threads: match self.intra_threads {
+                0 => std::thread::available_parallelism().map_or(1, |n| (n.get() / 2).max(1)),
+                n => n,
+            },
         }
     }
 
