@@ -79,27 +79,24 @@ impl Default for PerceptionConfig {
             max_batch: 0,
             max_wait_ms: 2,
             queue: 256,
-            descriptor: ImageModelConfig {
-                model: PathBuf::from(EFFICIENTNET),
-                input: "image".into(),
-                width: DESCRIPTOR_SIZE[0],
-                height: DESCRIPTOR_SIZE[1],
-                mean: LITE_MEAN,
-                std: LITE_STD,
-                output: "descriptor".into(),
-            },
-            scene: Some(ImageModelConfig {
-                model: PathBuf::from(EFFICIENTNET),
-                input: "image".into(),
-                width: DESCRIPTOR_SIZE[0],
-                height: DESCRIPTOR_SIZE[1],
-                mean: LITE_MEAN,
-                std: LITE_STD,
-                output: "scene".into(),
-            }),
+            descriptor: efficientnet("descriptor"),
+            scene: Some(efficientnet("scene")),
             detector: None,
             ocr: Some(OcrConfig::default()),
         }
+    }
+}
+
+/// The default EfficientNet-Lite0, read at `output`.
+fn efficientnet(output: &str) -> ImageModelConfig {
+    ImageModelConfig {
+        model: PathBuf::from(EFFICIENTNET),
+        input: "image".into(),
+        width: DESCRIPTOR_SIZE[0],
+        height: DESCRIPTOR_SIZE[1],
+        mean: LITE_MEAN,
+        std: LITE_STD,
+        output: output.into(),
     }
 }
 
