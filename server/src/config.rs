@@ -76,11 +76,17 @@ impl Default for StoreConfig {
 pub struct QueryDefaults {
     /// Minimum source-frame gap to keyframes of the querying session.
     pub min_frame_gap: u64,
+    /// Queries of one robot, session and kind waiting behind the running
+    /// one; a newer query supersedes the oldest waiting (latest wins).
+    pub pending_per_client: usize,
 }
 
 impl Default for QueryDefaults {
     fn default() -> Self {
-        QueryDefaults { min_frame_gap: 100 }
+        QueryDefaults {
+            min_frame_gap: 100,
+            pending_per_client: 1,
+        }
     }
 }
 

@@ -10,6 +10,7 @@ use crate::api::validate::Limits;
 use crate::api::PlaceRecognitionService;
 use crate::config::Config;
 use crate::perception::Perception;
+use crate::pipeline::latest_wins::LatestWins;
 use crate::proto::place_recognition_server::PlaceRecognitionServer;
 use crate::store::Store;
 
@@ -46,8 +47,13 @@ pub async fn serve(config: Config) -> anyhow::Result<()> {
         tracing::warn!("perception disabled: requests with images will be refused");
         None
     };
-    let service =
-        PlaceRecognitionService::new(store.clone(), config.vpr.clone(), limits, perception);
+    let service = PlaceRecognitionService::new(
+        store.clone(),
+        config.vpr.clone(),
+        limits,
+        perception,
+        LatestWins::new(config.query.pending_per_client),
+    );
     let max = config.server.max_message_bytes;
     let api = PlaceRecognitionServer::new(service)
         .max_decoding_message_size(max)
@@ -73,7 +79,7 @@ pub async fn serve(config: Config) -> anyhow::Result<()> {
 
     tonic::transport::Server::builder()
         .layer(tower::util::MapResponseLayer::new(
-            crate::api::oversize::oversize_as_invalid_argument,
+            crate::api::transport_status::map_transport_status,
         ))
         .add_service(health_service)
         .add_service(reflection)

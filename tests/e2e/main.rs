@@ -10,5 +10,6 @@ mod detector;
 mod durability;
 mod errors;
 mod images;
+mod latest_wins;
 mod maintenance;
 mod retrieval;

@@ -146,6 +146,7 @@ pub fn query_response(outcome: &QueryOutcome) -> proto::QueryResponse {
         eligible_keyframes: outcome.eligible,
         used_predecessor_ids: outcome.used_predecessors.clone(),
         timings: timings(&outcome.timings),
+        status: proto::QueryStatus::Answered as i32,
     }
 }
 

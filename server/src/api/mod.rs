@@ -2,8 +2,8 @@
 //! answers, and the tonic service that ties them to the store and pipeline.
 
 pub mod convert;
-pub mod oversize;
 pub mod service;
+pub mod transport_status;
 pub mod validate;
 
 pub use service::PlaceRecognitionService;

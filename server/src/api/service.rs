@@ -15,6 +15,7 @@ use super::validate::{self, InvalidField, Limits, Observation, PendingKeyframe};
 use crate::keyframe::{Features, SemanticKeyframe};
 use crate::perception::Perception;
 use crate::pipeline;
+use crate::pipeline::latest_wins::{Admission, LatestWins, SlotKey};
 use crate::proto;
 use crate::proto::place_recognition_server::PlaceRecognition;
 use crate::store::{MapKey, Mutation, Store};
@@ -28,6 +29,8 @@ pub struct PlaceRecognitionService {
     limits: Limits,
     /// The models; `None` when the server runs without perception.
     perception: Option<Perception>,
+    /// Latest-wins slots of the queries.
+    scheduler: Arc<LatestWins>,
 }
 
 /// Features of an observation and the time perception spent on them.
@@ -39,12 +42,14 @@ impl PlaceRecognitionService {
         params: VprParams,
         limits: Limits,
         perception: Option<Perception>,
+        scheduler: Arc<LatestWins>,
     ) -> Self {
         PlaceRecognitionService {
             store,
             params: Arc::new(params),
             limits,
             perception,
+            scheduler,
         }
     }
 
@@ -180,6 +185,22 @@ impl PlaceRecognition for PlaceRecognitionService {
         if let Some(frame) = spec.frame_id {
             span.record("frame", frame);
         }
+        // Wait for this client's turn; a newer query may take our place.
+        let slot = SlotKey {
+            robot_id: spec.session.robot_id.clone(),
+            session_id: spec.session.session_id.clone(),
+            kind: spec.kind as i32,
+        };
+        let _turn = match self.scheduler.admit(slot).await {
+            Admission::Run(turn) => turn,
+            Admission::Superseded => {
+                tracing::debug!("query superseded");
+                return Ok(Response::new(proto::QueryResponse {
+                    status: proto::QueryStatus::Superseded as i32,
+                    ..Default::default()
+                }));
+            }
+        };
         let mut perception_timings = Vec::new();
         if let Some(observation) = spec.observation.take() {
             let (features, timings) = self.resolve(observation).await?;

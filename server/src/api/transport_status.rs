@@ -1,10 +1,15 @@
-//! Requests over the message-size limit, reported as INVALID_ARGUMENT.
+//! Statuses tonic's transport produces inside the service, mapped to the
+//! ones our API promises.
 //!
-//! tonic refuses a request larger than `server.max_message_bytes` before
-//! decoding it, with OUT_OF_RANGE. For a client that is a bad request like
-//! any other, and our API promises INVALID_ARGUMENT for bad requests, so this
-//! response mapper rewrites exactly that status (our handlers never return
-//! OUT_OF_RANGE) and names the setting.
+//! A request larger than `server.max_message_bytes` is refused before
+//! decoding with OUT_OF_RANGE; for a client that is a bad request like any
+//! other, so it becomes INVALID_ARGUMENT naming the setting. Our handlers
+//! never return OUT_OF_RANGE, so only tonic's own status is rewritten.
+//!
+//! (A client deadline that expires ends the request in tonic's outermost
+//! layer, with CANCELLED "Timeout expired", out of reach of this mapper;
+//! gRPC clients that enforce their deadline themselves, like gRPC C++,
+//! report DEADLINE_EXCEEDED on their side.)
 
 use tonic::codegen::http;
 
@@ -12,7 +17,7 @@ use tonic::codegen::http;
 const TONIC_OVERSIZE: &[u8] = b"decoded message length too large";
 
 /// Rewrites tonic's oversize-request status; every other response passes.
-pub fn oversize_as_invalid_argument<B>(mut response: http::Response<B>) -> http::Response<B> {
+pub fn map_transport_status<B>(mut response: http::Response<B>) -> http::Response<B> {
     let headers = response.headers_mut();
     let is_oversize = headers.get("grpc-status").map(|v| v.as_bytes()) == Some(b"11")
         && headers.get("grpc-message").is_some_and(|m| {
@@ -51,7 +56,7 @@ mod tests {
 
     #[test]
     fn only_the_oversize_status_is_rewritten() {
-        let r = oversize_as_invalid_argument(response(
+        let r = map_transport_status(response(
             "11",
             "Error, decoded message length too large: found 20 bytes, the limit is: 10 bytes",
         ));
@@ -60,9 +65,9 @@ mod tests {
             r.headers()["grpc-message"],
             "request: decoded message length too large: found 20 bytes, the limit is: 10 bytes (server.max_message_bytes)"
         );
-        let r = oversize_as_invalid_argument(response("11", "something else"));
+        let r = map_transport_status(response("11", "something else"));
         assert_eq!(r.headers()["grpc-status"], "11");
-        let r = oversize_as_invalid_argument(response("5", "decoded message length too large"));
+        let r = map_transport_status(response("5", "decoded message length too large"));
         assert_eq!(r.headers()["grpc-status"], "5");
     }
 }
