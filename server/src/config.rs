@@ -23,7 +23,28 @@ pub struct Config {
     pub query: QueryDefaults,
     pub vpr: VprParams,
     pub perception: PerceptionConfig,
+    pub metrics: MetricsConfig,
     pub log: LogConfig,
+}
+
+/// The Prometheus endpoint.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(default, deny_unknown_fields)]
+pub struct MetricsConfig {
+    /// Serve `/metrics` over HTTP.
+    pub enabled: bool,
+    /// Its address (9464 is the usual exporter port; Prometheus itself
+    /// takes 9090).
+    pub listen: SocketAddr,
+}
+
+impl Default for MetricsConfig {
+    fn default() -> Self {
+        MetricsConfig {
+            enabled: true,
+            listen: SocketAddr::from(([127, 0, 0, 1], 9464)),
+        }
+    }
 }
 
 /// The gRPC endpoint.

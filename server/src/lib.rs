@@ -16,6 +16,7 @@ pub mod bench;
 pub mod cli;
 pub mod config;
 pub mod keyframe;
+pub mod metrics;
 pub mod perception;
 pub mod pipeline;
 pub mod server;

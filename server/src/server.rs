@@ -9,6 +9,7 @@ use tokio_stream::wrappers::TcpListenerStream;
 use crate::api::validate::Limits;
 use crate::api::PlaceRecognitionService;
 use crate::config::Config;
+use crate::metrics;
 use crate::perception::Perception;
 use crate::pipeline::latest_wins::LatestWins;
 use crate::proto::place_recognition_server::PlaceRecognitionServer;
@@ -69,6 +70,18 @@ pub async fn serve(config: Config) -> anyhow::Result<()> {
         .build_v1()
         .context("building the reflection service")?;
 
+    metrics::init();
+    let (stop_tx, stop_rx) = tokio::sync::watch::channel(false);
+    if config.metrics.enabled {
+        let mut stop = stop_rx.clone();
+        let addr = metrics::serve(config.metrics.listen, store.clone(), async move {
+            let _ = stop.changed().await;
+        })
+        .await?;
+        tracing::info!(%addr, "metrics on /metrics");
+        println!("humem metrics on {addr}");
+    }
+
     let listener = TcpListener::bind(config.server.listen)
         .await
         .with_context(|| format!("binding {}", config.server.listen))?;
@@ -87,6 +100,7 @@ pub async fn serve(config: Config) -> anyhow::Result<()> {
         .serve_with_incoming_shutdown(TcpListenerStream::new(listener), async move {
             shutdown_signal().await;
             tracing::info!("shutdown requested: finishing in-flight requests");
+            let _ = stop_tx.send(true);
             health
                 .set_not_serving::<PlaceRecognitionServer<PlaceRecognitionService>>()
                 .await;

@@ -32,6 +32,8 @@ pub fn datasets() -> Option<PathBuf> {
 pub struct Server {
     child: Option<Child>,
     pub url: String,
+    /// Address of the Prometheus endpoint.
+    pub metrics: String,
     pub data_dir: PathBuf,
 }
 
@@ -57,6 +59,7 @@ impl Server {
             .arg(data_dir)
             .env("RUST_LOG", "warn,ort::logging=error")
             .env("HUMEM_PERCEPTION__ENABLED", "false")
+            .env("HUMEM_METRICS__LISTEN", "127.0.0.1:0")
             .env("HUMEM_PERCEPTION__MODELS_DIR", models_dir())
             .env_remove("HUMEM_CONFIG")
             .stdout(Stdio::piped())
@@ -75,19 +78,24 @@ impl Server {
         let stdout = child.stdout.take().expect("piped stdout");
         let (tx, rx) = mpsc::channel();
         std::thread::spawn(move || {
+            let mut metrics = String::new();
             for line in BufReader::new(stdout).lines() {
                 let Ok(line) = line else { break };
+                if let Some(addr) = line.strip_prefix("humem metrics on ") {
+                    metrics = addr.to_string();
+                }
                 if let Some(addr) = line.strip_prefix("humem listening on ") {
-                    let _ = tx.send(addr.to_string());
+                    let _ = tx.send((addr.to_string(), metrics.clone()));
                 }
             }
         });
-        let addr = rx
+        let (addr, metrics) = rx
             .recv_timeout(Duration::from_secs(60))
             .expect("humem serve did not report its address");
         Server {
             child: Some(child),
             url: format!("http://{addr}"),
+            metrics,
             data_dir: data_dir.to_path_buf(),
         }
     }
@@ -105,6 +113,31 @@ impl Server {
             .connect()
             .await
             .expect("connecting to humem")
+    }
+
+    /// The Prometheus exposition, fetched over plain HTTP/1.1.
+    pub fn scrape(&self) -> String {
+        use std::io::{Read, Write};
+        let mut stream = std::net::TcpStream::connect(&self.metrics).expect("metrics endpoint");
+        write!(
+            stream,
+            "GET /metrics HTTP/1.1\r\nHost: {}\r\nConnection: close\r\n\r\n",
+            self.metrics
+        )
+        .unwrap();
+        let mut response = String::new();
+        stream.read_to_string(&mut response).unwrap();
+        assert!(response.starts_with("HTTP/1.1 200"), "{response}");
+        response
+    }
+
+    /// The value of one sample of the exposition (`name{labels}` exactly as
+    /// printed, labels sorted), if present.
+    pub fn sample(exposition: &str, series: &str) -> Option<f64> {
+        exposition.lines().find_map(|line| {
+            let (name, value) = line.rsplit_once(' ')?;
+            (name == series).then(|| value.parse().unwrap())
+        })
     }
 
     /// SIGKILL: no chance to flush anything.

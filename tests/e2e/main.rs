@@ -12,4 +12,5 @@ mod errors;
 mod images;
 mod latest_wins;
 mod maintenance;
+mod metrics;
 mod retrieval;

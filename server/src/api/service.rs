@@ -6,13 +6,14 @@
 //! scan never stalls the async runtime.
 
 use std::sync::Arc;
-use std::time::Duration;
+use std::time::{Duration, Instant};
 
 use tonic::{Request, Response, Status};
 
 use super::convert;
 use super::validate::{self, InvalidField, Limits, Observation, PendingKeyframe};
 use crate::keyframe::{Features, SemanticKeyframe};
+use crate::metrics;
 use crate::perception::Perception;
 use crate::pipeline;
 use crate::pipeline::latest_wins::{Admission, LatestWins, SlotKey};
@@ -129,10 +130,11 @@ impl PlaceRecognitionService {
     }
 }
 
-#[tonic::async_trait]
-impl PlaceRecognition for PlaceRecognitionService {
+/// The handlers, one per RPC; the trait implementation below wraps each
+/// with its metrics.
+impl PlaceRecognitionService {
     #[tracing::instrument(skip_all, fields(robot, session, keyframe))]
-    async fn insert(
+    async fn handle_insert(
         &self,
         request: Request<proto::InsertRequest>,
     ) -> Result<Response<proto::InsertResponse>, Status> {
@@ -146,6 +148,8 @@ impl PlaceRecognition for PlaceRecognitionService {
         self.check_dims(|_| "keyframe".into(), &keyframes)?;
         let (features, timings) = resolved.pop().unwrap_or_default();
         let outcome = self.store.apply(Mutation::Insert(keyframes)).await?;
+        metrics::KEYFRAMES_INSERTED.inc();
+        metrics::observe_stages(&timings);
         Ok(Response::new(proto::InsertResponse {
             replaced: outcome.replaced > 0,
             store_keyframes: outcome.store_keyframes,
@@ -155,15 +159,20 @@ impl PlaceRecognition for PlaceRecognitionService {
     }
 
     #[tracing::instrument(skip_all, fields(keyframes))]
-    async fn insert_batch(
+    async fn handle_insert_batch(
         &self,
         request: Request<proto::InsertBatchRequest>,
     ) -> Result<Response<proto::InsertBatchResponse>, Status> {
         let pending = validate::batch(request.into_inner().keyframes, &self.limits)?;
         tracing::Span::current().record("keyframes", pending.len());
-        let (keyframes, _) = self.resolve_all(pending).await?;
+        let (keyframes, resolved) = self.resolve_all(pending).await?;
+        for (_, timings) in &resolved {
+            metrics::observe_stages(timings);
+        }
         self.check_dims(|i| format!("keyframes[{i}]"), &keyframes)?;
+        let count = keyframes.len() as u64;
         let outcome = self.store.apply(Mutation::Insert(keyframes)).await?;
+        metrics::KEYFRAMES_INSERTED.inc_by(count);
         Ok(Response::new(proto::InsertBatchResponse {
             replaced: u32::try_from(outcome.replaced).unwrap_or(u32::MAX),
             store_keyframes: outcome.store_keyframes,
@@ -171,7 +180,7 @@ impl PlaceRecognition for PlaceRecognitionService {
     }
 
     #[tracing::instrument(skip_all, fields(robot, session, map, frame))]
-    async fn query(
+    async fn handle_query(
         &self,
         request: Request<proto::QueryRequest>,
     ) -> Result<Response<proto::QueryResponse>, Status> {
@@ -195,12 +204,16 @@ impl PlaceRecognition for PlaceRecognitionService {
             Admission::Run(turn) => turn,
             Admission::Superseded => {
                 tracing::debug!("query superseded");
+                metrics::QUERIES_SUPERSEDED
+                    .with_label_values(&[kind_label(spec.kind)])
+                    .inc();
                 return Ok(Response::new(proto::QueryResponse {
                     status: proto::QueryStatus::Superseded as i32,
                     ..Default::default()
                 }));
             }
         };
+        let kind = spec.kind;
         let mut perception_timings = Vec::new();
         if let Some(observation) = spec.observation.take() {
             let (features, timings) = self.resolve(observation).await?;
@@ -217,6 +230,16 @@ impl PlaceRecognition for PlaceRecognitionService {
         .map_err(|e| Status::internal(format!("query task failed: {e}")))??;
         perception_timings.append(&mut outcome.timings);
         outcome.timings = perception_timings;
+        metrics::observe_stages(&outcome.timings);
+        let kind = kind_label(kind);
+        metrics::CANDIDATES
+            .with_label_values(&[kind])
+            .observe(outcome.candidates.len() as f64);
+        for c in &outcome.candidates {
+            metrics::CANDIDATE_SCORE
+                .with_label_values(&[kind])
+                .observe(f64::from(c.score));
+        }
         tracing::debug!(
             candidates = outcome.candidates.len(),
             eligible = outcome.eligible,
@@ -226,7 +249,7 @@ impl PlaceRecognition for PlaceRecognitionService {
     }
 
     #[tracing::instrument(skip_all)]
-    async fn erase(
+    async fn handle_erase(
         &self,
         request: Request<proto::EraseRequest>,
     ) -> Result<Response<proto::EraseResponse>, Status> {
@@ -244,7 +267,7 @@ impl PlaceRecognition for PlaceRecognitionService {
     }
 
     #[tracing::instrument(skip_all)]
-    async fn reset_map(
+    async fn handle_reset_map(
         &self,
         request: Request<proto::ResetMapRequest>,
     ) -> Result<Response<proto::ResetMapResponse>, Status> {
@@ -264,7 +287,7 @@ impl PlaceRecognition for PlaceRecognitionService {
     }
 
     #[tracing::instrument(skip_all)]
-    async fn reset_session(
+    async fn handle_reset_session(
         &self,
         request: Request<proto::ResetSessionRequest>,
     ) -> Result<Response<proto::ResetSessionResponse>, Status> {
@@ -277,7 +300,7 @@ impl PlaceRecognition for PlaceRecognitionService {
     }
 
     #[tracing::instrument(skip_all)]
-    async fn update_poses(
+    async fn handle_update_poses(
         &self,
         request: Request<proto::UpdatePosesRequest>,
     ) -> Result<Response<proto::UpdatePosesResponse>, Status> {
@@ -292,7 +315,7 @@ impl PlaceRecognition for PlaceRecognitionService {
         }))
     }
 
-    async fn stats(
+    async fn handle_stats(
         &self,
         _request: Request<proto::StatsRequest>,
     ) -> Result<Response<proto::StatsResponse>, Status> {
@@ -318,5 +341,119 @@ impl PlaceRecognition for PlaceRecognitionService {
             format_version: u32::from(crate::store::codec::FORMAT_VERSION),
             server_version: env!("CARGO_PKG_VERSION").into(),
         }))
+    }
+}
+
+#[tonic::async_trait]
+impl PlaceRecognition for PlaceRecognitionService {
+    async fn insert(
+        &self,
+        request: Request<proto::InsertRequest>,
+    ) -> Result<Response<proto::InsertResponse>, Status> {
+        let rpc = RpcObserver::start("Insert");
+        rpc.finish(self.handle_insert(request).await)
+    }
+
+    async fn insert_batch(
+        &self,
+        request: Request<proto::InsertBatchRequest>,
+    ) -> Result<Response<proto::InsertBatchResponse>, Status> {
+        let rpc = RpcObserver::start("InsertBatch");
+        rpc.finish(self.handle_insert_batch(request).await)
+    }
+
+    async fn query(
+        &self,
+        request: Request<proto::QueryRequest>,
+    ) -> Result<Response<proto::QueryResponse>, Status> {
+        let rpc = RpcObserver::start("Query");
+        rpc.finish(self.handle_query(request).await)
+    }
+
+    async fn erase(
+        &self,
+        request: Request<proto::EraseRequest>,
+    ) -> Result<Response<proto::EraseResponse>, Status> {
+        let rpc = RpcObserver::start("Erase");
+        rpc.finish(self.handle_erase(request).await)
+    }
+
+    async fn reset_map(
+        &self,
+        request: Request<proto::ResetMapRequest>,
+    ) -> Result<Response<proto::ResetMapResponse>, Status> {
+        let rpc = RpcObserver::start("ResetMap");
+        rpc.finish(self.handle_reset_map(request).await)
+    }
+
+    async fn reset_session(
+        &self,
+        request: Request<proto::ResetSessionRequest>,
+    ) -> Result<Response<proto::ResetSessionResponse>, Status> {
+        let rpc = RpcObserver::start("ResetSession");
+        rpc.finish(self.handle_reset_session(request).await)
+    }
+
+    async fn update_poses(
+        &self,
+        request: Request<proto::UpdatePosesRequest>,
+    ) -> Result<Response<proto::UpdatePosesResponse>, Status> {
+        let rpc = RpcObserver::start("UpdatePoses");
+        rpc.finish(self.handle_update_poses(request).await)
+    }
+
+    async fn stats(
+        &self,
+        request: Request<proto::StatsRequest>,
+    ) -> Result<Response<proto::StatsResponse>, Status> {
+        let rpc = RpcObserver::start("Stats");
+        rpc.finish(self.handle_stats(request).await)
+    }
+}
+
+/// The label of a query kind in metrics.
+fn kind_label(kind: proto::QueryKind) -> &'static str {
+    match kind {
+        proto::QueryKind::Relocalisation => "relocalisation",
+        _ => "loop_closure",
+    }
+}
+
+/// Records an RPC's latency and status code when it finishes, and as
+/// CANCELLED if the caller went away first (its future was dropped).
+struct RpcObserver {
+    rpc: &'static str,
+    started: Instant,
+    done: bool,
+}
+
+impl RpcObserver {
+    fn start(rpc: &'static str) -> RpcObserver {
+        RpcObserver {
+            rpc,
+            started: Instant::now(),
+            done: false,
+        }
+    }
+
+    fn finish<T>(mut self, result: Result<T, Status>) -> Result<T, Status> {
+        let code = result
+            .as_ref()
+            .map_or_else(|s| s.code(), |_| tonic::Code::Ok);
+        metrics::observe_rpc(self.rpc, code, self.started.elapsed().as_secs_f64());
+        self.done = true;
+        result
+    }
+}
+
+impl Drop for RpcObserver {
+    fn drop(&mut self) {
+        if !self.done {
+            metrics::observe_rpc(
+                self.rpc,
+                tonic::Code::Cancelled,
+                self.started.elapsed().as_secs_f64(),
+            );
+        }
     }
 }

@@ -15,6 +15,7 @@ use std::time::{Duration, Instant};
 use tokio::sync::oneshot;
 
 use super::runtime::RuntimeError;
+use crate::metrics;
 
 /// A model that runs on batches.
 pub trait BatchModel: Send + 'static {
@@ -130,6 +131,7 @@ impl<M: BatchModel> Batcher<M> {
             },
             TrySendError::Disconnected(_) => BatchError::Stopped { model: self.name },
         })?;
+        metrics::QUEUE_DEPTH.with_label_values(&[self.name]).inc();
         answer
             .await
             .map_err(|_| BatchError::Stopped { model: self.name })?

@@ -24,6 +24,11 @@ pub struct SlotKey {
     pub kind: i32,
 }
 
+/// The queries-waiting gauge.
+fn waiting_gauge() -> prometheus::IntGauge {
+    crate::metrics::QUEUE_DEPTH.with_label_values(&["queries"])
+}
+
 enum Turn {
     Run,
     Superseded,
@@ -112,12 +117,14 @@ impl LatestWins {
             if slot.waiting.len() >= self.capacity {
                 if let Some(oldest) = slot.waiting.pop_front() {
                     self.superseded.fetch_add(1, Ordering::Relaxed);
+                    waiting_gauge().dec();
                     let _ = oldest.wake.send(Turn::Superseded);
                 }
             }
             let id = self.next_id.fetch_add(1, Ordering::Relaxed);
             let (wake, receiver) = oneshot::channel();
             slot.waiting.push_back(Waiter { id, wake });
+            waiting_gauge().inc();
             (id, receiver)
         };
         let mut waiting = Waiting {
@@ -145,6 +152,7 @@ impl LatestWins {
             return;
         };
         while let Some(next) = slot.waiting.pop_front() {
+            waiting_gauge().dec();
             if next.wake.send(Turn::Run).is_ok() {
                 return;
             }
@@ -180,7 +188,9 @@ impl Drop for Waiting {
             .lock()
             .unwrap_or_else(|e| e.into_inner());
         if let Some(slot) = slots.get_mut(&self.key) {
+            let before = slot.waiting.len();
             slot.waiting.retain(|w| w.id != self.id);
+            waiting_gauge().sub((before - slot.waiting.len()) as i64);
         }
     }
 }

@@ -15,6 +15,7 @@ use tokio::sync::{mpsc, oneshot};
 use super::codec::{self, decode_record, encode_key, encode_record};
 use super::{Index, Mutation, MutationOutcome, PoseUpdate, StoreError, META_DIM};
 use crate::keyframe::{KeyframeKey, Pose, SemanticKeyframe};
+use crate::metrics;
 
 /// Most changes committed by one flush.
 const MAX_GROUP: usize = 256;
@@ -46,6 +47,9 @@ impl WriterHandle {
                 },
                 mpsc::error::TrySendError::Closed(_) => StoreError::WriterGone,
             })?;
+        metrics::QUEUE_DEPTH
+            .with_label_values(&["store_writer"])
+            .inc();
         answer.await.map_err(|_| StoreError::WriterGone)?
     }
 }
@@ -87,6 +91,9 @@ impl Writer {
                     Err(_) => break,
                 }
             }
+            metrics::QUEUE_DEPTH
+                .with_label_values(&["store_writer"])
+                .sub(group.len() as i64);
             self.commit(group);
         }
         if let Err(e) = self.trees.db.flush() {

@@ -1,0 +1,280 @@
+//! Prometheus metrics: what the service exposes for Grafana and alerting.
+//!
+//! The metrics are process-wide statics in one registry, so that any layer
+//! (the batcher, the query scheduler, the handlers) records where the event
+//! happens without threading a handle through every call. Names follow
+//! Prometheus conventions: `humem_` prefix, base units, `_total` counters,
+//! `_seconds` durations. Gauges that describe the store (keyframes per map,
+//! bytes on disk) are computed when scraped. The exposition is the
+//! `prometheus` crate's text encoder, served over HTTP by axum.
+
+use std::net::SocketAddr;
+use std::sync::LazyLock;
+
+use prometheus::{
+    Encoder, HistogramOpts, HistogramVec, IntCounter, IntCounterVec, IntGauge, IntGaugeVec, Opts,
+    Registry, TextEncoder,
+};
+
+use crate::store::Store;
+
+/// The registry every HuMem metric is in.
+pub static REGISTRY: LazyLock<Registry> = LazyLock::new(Registry::new);
+
+fn register<C: prometheus::core::Collector + Clone + 'static>(collector: C) -> C {
+    REGISTRY
+        .register(Box::new(collector.clone()))
+        .expect("metric names are unique");
+    collector
+}
+
+/// Latency buckets from 100 µs to 10 s.
+fn latency_buckets() -> Vec<f64> {
+    prometheus::exponential_buckets(0.0001, 2.5, 12).expect("valid buckets")
+}
+
+/// Requests per RPC and gRPC status code.
+pub static RPC_REQUESTS: LazyLock<IntCounterVec> = LazyLock::new(|| {
+    register(
+        IntCounterVec::new(
+            Opts::new(
+                "humem_rpc_requests_total",
+                "gRPC requests by RPC and status code",
+            ),
+            &["rpc", "code"],
+        )
+        .unwrap(),
+    )
+});
+
+/// Latency per RPC.
+pub static RPC_DURATION: LazyLock<HistogramVec> = LazyLock::new(|| {
+    register(
+        HistogramVec::new(
+            HistogramOpts::new("humem_rpc_duration_seconds", "gRPC request latency by RPC")
+                .buckets(latency_buckets()),
+            &["rpc"],
+        )
+        .unwrap(),
+    )
+});
+
+/// Time per pipeline stage (decode, each model, each VPR layer).
+pub static STAGE_DURATION: LazyLock<HistogramVec> = LazyLock::new(|| {
+    register(
+        HistogramVec::new(
+            HistogramOpts::new(
+                "humem_stage_duration_seconds",
+                "time per request in each stage: decode, descriptor, scene, detector, ocr_det, ocr_rec, scal, osrl, ogtl, fusion",
+            )
+            .buckets(latency_buckets()),
+            &["stage"],
+        )
+        .unwrap(),
+    )
+});
+
+/// Inputs per model inference.
+pub static BATCH_SIZE: LazyLock<HistogramVec> = LazyLock::new(|| {
+    register(
+        HistogramVec::new(
+            HistogramOpts::new("humem_batch_size", "inputs per model inference")
+                .buckets(vec![1.0, 2.0, 4.0, 8.0, 16.0, 32.0]),
+            &["model"],
+        )
+        .unwrap(),
+    )
+});
+
+/// Jobs waiting per queue (model queues, the store writer, query slots).
+pub static QUEUE_DEPTH: LazyLock<IntGaugeVec> = LazyLock::new(|| {
+    register(
+        IntGaugeVec::new(
+            Opts::new("humem_queue_depth", "jobs waiting, by queue"),
+            &["queue"],
+        )
+        .unwrap(),
+    )
+});
+
+/// Queries answered as superseded (latest wins), by query kind.
+pub static QUERIES_SUPERSEDED: LazyLock<IntCounterVec> = LazyLock::new(|| {
+    register(
+        IntCounterVec::new(
+            Opts::new(
+                "humem_queries_superseded_total",
+                "queries displaced by a newer query of the same client",
+            ),
+            &["kind"],
+        )
+        .unwrap(),
+    )
+});
+
+/// Keyframes stored by Insert and InsertBatch.
+pub static KEYFRAMES_INSERTED: LazyLock<IntCounter> = LazyLock::new(|| {
+    register(IntCounter::new("humem_keyframes_inserted_total", "keyframes stored").unwrap())
+});
+
+/// Candidates returned per answered query.
+pub static CANDIDATES: LazyLock<HistogramVec> = LazyLock::new(|| {
+    register(
+        HistogramVec::new(
+            HistogramOpts::new(
+                "humem_query_candidates",
+                "candidates returned per answered query",
+            )
+            .buckets(vec![0.0, 1.0, 2.0, 3.0, 5.0, 10.0, 25.0]),
+            &["kind"],
+        )
+        .unwrap(),
+    )
+});
+
+/// Fused scores Λ of returned candidates.
+pub static CANDIDATE_SCORE: LazyLock<HistogramVec> = LazyLock::new(|| {
+    register(
+        HistogramVec::new(
+            HistogramOpts::new(
+                "humem_candidate_score",
+                "fused score of returned candidates",
+            )
+            .buckets(prometheus::linear_buckets(0.5, 0.05, 10).expect("valid buckets")),
+            &["kind"],
+        )
+        .unwrap(),
+    )
+});
+
+/// Keyframes in the store per map (computed when scraped).
+pub static KEYFRAMES: LazyLock<IntGaugeVec> = LazyLock::new(|| {
+    register(
+        IntGaugeVec::new(
+            Opts::new(
+                "humem_keyframes",
+                "keyframes stored, by robot, session and map",
+            ),
+            &["robot", "session", "map"],
+        )
+        .unwrap(),
+    )
+});
+
+/// Store size on disk (computed when scraped).
+pub static STORE_BYTES: LazyLock<IntGauge> = LazyLock::new(|| {
+    register(IntGauge::new("humem_store_disk_bytes", "size of the sled store on disk").unwrap())
+});
+
+/// Records one finished RPC.
+pub fn observe_rpc(rpc: &str, code: tonic::Code, seconds: f64) {
+    RPC_REQUESTS
+        .with_label_values(&[rpc, code_name(code)])
+        .inc();
+    RPC_DURATION.with_label_values(&[rpc]).observe(seconds);
+}
+
+/// Records the stage timings of one request.
+pub fn observe_stages(timings: &[(&'static str, std::time::Duration)]) {
+    for (stage, took) in timings {
+        STAGE_DURATION
+            .with_label_values(&[stage])
+            .observe(took.as_secs_f64());
+    }
+}
+
+/// The gRPC code names of the status codes, as Prometheus label values.
+fn code_name(code: tonic::Code) -> &'static str {
+    use tonic::Code::*;
+    match code {
+        Ok => "OK",
+        Cancelled => "CANCELLED",
+        Unknown => "UNKNOWN",
+        InvalidArgument => "INVALID_ARGUMENT",
+        DeadlineExceeded => "DEADLINE_EXCEEDED",
+        NotFound => "NOT_FOUND",
+        AlreadyExists => "ALREADY_EXISTS",
+        PermissionDenied => "PERMISSION_DENIED",
+        ResourceExhausted => "RESOURCE_EXHAUSTED",
+        FailedPrecondition => "FAILED_PRECONDITION",
+        Aborted => "ABORTED",
+        OutOfRange => "OUT_OF_RANGE",
+        Unimplemented => "UNIMPLEMENTED",
+        Internal => "INTERNAL",
+        Unavailable => "UNAVAILABLE",
+        DataLoss => "DATA_LOSS",
+        Unauthenticated => "UNAUTHENTICATED",
+    }
+}
+
+/// The text exposition, with the store's gauges brought up to date.
+pub fn render(store: &Store) -> String {
+    KEYFRAMES.reset();
+    for (map, count) in store.index().map_counts() {
+        KEYFRAMES
+            .with_label_values(&[
+                map.session.robot_id.as_str(),
+                map.session.session_id.as_str(),
+                &map.map_id.to_string(),
+            ])
+            .set(count as i64);
+    }
+    STORE_BYTES.set(i64::try_from(store.disk_bytes()).unwrap_or(i64::MAX));
+    let mut buffer = Vec::new();
+    TextEncoder::new()
+        .encode(&REGISTRY.gather(), &mut buffer)
+        .expect("encoding metrics into memory");
+    String::from_utf8(buffer).expect("the text format is UTF-8")
+}
+
+/// Touches every static so all metric families exist from the start (a
+/// dashboard should see zeros, not missing series).
+pub fn init() {
+    LazyLock::force(&RPC_REQUESTS);
+    LazyLock::force(&RPC_DURATION);
+    LazyLock::force(&STAGE_DURATION);
+    LazyLock::force(&BATCH_SIZE);
+    LazyLock::force(&QUEUE_DEPTH);
+    LazyLock::force(&QUERIES_SUPERSEDED);
+    LazyLock::force(&KEYFRAMES_INSERTED);
+    LazyLock::force(&CANDIDATES);
+    LazyLock::force(&CANDIDATE_SCORE);
+    LazyLock::force(&KEYFRAMES);
+    LazyLock::force(&STORE_BYTES);
+}
+
+/// Serves `/metrics` on `listen` until `shutdown` resolves.
+pub async fn serve(
+    listen: SocketAddr,
+    store: Store,
+    shutdown: impl std::future::Future<Output = ()> + Send + 'static,
+) -> anyhow::Result<SocketAddr> {
+    use anyhow::Context;
+    let listener = tokio::net::TcpListener::bind(listen)
+        .await
+        .with_context(|| format!("binding the metrics endpoint {listen}"))?;
+    let local = listener.local_addr()?;
+    let app = axum::Router::new().route(
+        "/metrics",
+        axum::routing::get(move || {
+            let store = store.clone();
+            async move {
+                (
+                    [(
+                        axum::http::header::CONTENT_TYPE,
+                        "text/plain; version=0.0.4",
+                    )],
+                    render(&store),
+                )
+            }
+        }),
+    );
+    tokio::spawn(async move {
+        if let Err(e) = axum::serve(listener, app)
+            .with_graceful_shutdown(shutdown)
+            .await
+        {
+            tracing::error!(error = %e, "metrics endpoint failed");
+        }
+    });
+    Ok(local)
+}

@@ -1,0 +1,124 @@
+//! The Prometheus endpoint of the real binary moves with traffic, and the
+//! ingest queue pushes back instead of growing under a flood.
+
+use humem::proto;
+
+use crate::harness::Server;
+use crate::scenes::{self, World};
+
+#[tokio::test(flavor = "multi_thread")]
+async fn metrics_follow_traffic() {
+    let dir = tempfile::tempdir().unwrap();
+    let server = Server::start(dir.path());
+    let before = server.scrape();
+    // Unlabelled series exist from the start.
+    assert_eq!(
+        Server::sample(&before, "humem_keyframes_inserted_total"),
+        Some(0.0)
+    );
+    assert!(Server::sample(&before, "humem_store_disk_bytes").is_some());
+
+    let mut client = server.client().await;
+    let mut world = World::new(60, 9);
+    let drive = scenes::loop_drive(&mut world, "robot-m", "s", 4, 60, 10);
+    scenes::insert_all(&mut client, drive.iter().map(|(kf, _)| kf.clone())).await;
+    for (kf, _) in &drive[60..] {
+        client
+            .query(scenes::query_stored("robot-m", "s", scenes::id(kf)))
+            .await
+            .unwrap();
+    }
+    client
+        .erase(proto::EraseRequest {
+            robot_id: String::new(),
+            session_id: String::new(),
+            keyframe_ids: vec![1],
+        })
+        .await
+        .unwrap_err();
+
+    let after = server.scrape();
+    let sample = |series: &str| {
+        Server::sample(&after, series).unwrap_or_else(|| panic!("no {series} in\n{after}"))
+    };
+    assert_eq!(sample("humem_keyframes_inserted_total"), 70.0);
+    assert_eq!(
+        sample(r#"humem_rpc_requests_total{code="OK",rpc="InsertBatch"}"#),
+        1.0
+    );
+    assert_eq!(
+        sample(r#"humem_rpc_requests_total{code="OK",rpc="Query"}"#),
+        10.0
+    );
+    assert_eq!(
+        sample(r#"humem_rpc_requests_total{code="INVALID_ARGUMENT",rpc="Erase"}"#),
+        1.0
+    );
+    assert_eq!(
+        sample(r#"humem_rpc_duration_seconds_count{rpc="Query"}"#),
+        10.0
+    );
+    assert_eq!(
+        sample(r#"humem_stage_duration_seconds_count{stage="scal"}"#),
+        10.0
+    );
+    assert_eq!(
+        sample(r#"humem_query_candidates_count{kind="loop_closure"}"#),
+        10.0
+    );
+    assert!(sample(r#"humem_candidate_score_count{kind="loop_closure"}"#) >= 10.0);
+    assert_eq!(
+        sample(r#"humem_keyframes{map="4",robot="robot-m",session="s"}"#),
+        70.0
+    );
+    assert!(sample("humem_store_disk_bytes") > 0.0);
+    assert_eq!(sample(r#"humem_queue_depth{queue="store_writer"}"#), 0.0);
+}
+
+#[tokio::test(flavor = "multi_thread")]
+async fn a_flood_of_inserts_is_pushed_back_not_queued_without_bound() {
+    let dir = tempfile::tempdir().unwrap();
+    let server = Server::start_with(dir.path(), &["HUMEM_STORE__WRITE_QUEUE=2"]);
+    let mut world = World::new(64, 10);
+    let drive = scenes::loop_drive(&mut world, "flood", "s", 0, 64, 0);
+    let mut tasks = Vec::new();
+    for chunk in drive.chunks(2) {
+        for _ in 0..4 {
+            let mut client = server.client().await;
+            let keyframes: Vec<_> = chunk.iter().map(|(kf, _)| kf.clone()).collect();
+            tasks.push(tokio::spawn(async move {
+                client
+                    .insert_batch(proto::InsertBatchRequest { keyframes })
+                    .await
+            }));
+        }
+    }
+    let (mut ok, mut pushed_back) = (0, 0);
+    for task in tasks {
+        match task.await.unwrap() {
+            Ok(_) => ok += 1,
+            Err(status) => {
+                assert_eq!(status.code(), tonic::Code::ResourceExhausted, "{status:?}");
+                assert!(status.metadata().get("retry-after-ms").is_some());
+                pushed_back += 1;
+            }
+        }
+    }
+    assert_eq!(ok + pushed_back, 128);
+    assert!(
+        ok > 0 && pushed_back > 0,
+        "ok {ok}, pushed back {pushed_back}"
+    );
+    let exposition = server.scrape();
+    let depth = Server::sample(&exposition, r#"humem_queue_depth{queue="store_writer"}"#).unwrap();
+    assert!(depth <= 2.0);
+    // Every accepted insert is stored; the store holds only whole batches.
+    let stats = server
+        .client()
+        .await
+        .stats(proto::StatsRequest {})
+        .await
+        .unwrap()
+        .into_inner();
+    assert!(stats.keyframes > 0 && stats.keyframes % 2 == 0 && stats.keyframes <= 64);
+}
