@@ -122,3 +122,50 @@ async fn a_flood_of_inserts_is_pushed_back_not_queued_without_bound() {
         .into_inner();
     assert!(stats.keyframes > 0 && stats.keyframes % 2 == 0 && stats.keyframes <= 64);
 }
+
+#[tokio::test(flavor = "multi_thread")]
+async fn the_load_generator_reports_what_it_achieved() {
+    let dir = tempfile::tempdir().unwrap();
+    let server = Server::start(dir.path());
+    let out = std::process::Command::new(env!("CARGO_BIN_EXE_humem"))
+        .args([
+            "load",
+            "--server",
+            &server.url,
+            "--robots",
+            "3",
+            "--rate",
+            "20",
+            "--duration",
+            "2",
+        ])
+        .output()
+        .unwrap();
+    let text = String::from_utf8(out.stdout).unwrap();
+    assert!(
+        out.status.success(),
+        "{text}{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    let row = |call: &str| -> Vec<f64> {
+        text.lines()
+            .find(|l| l.starts_with(call))
+            .unwrap_or_else(|| panic!("no {call} row in\n{text}"))
+            .split_whitespace()
+            .skip(1)
+            .map(|v| v.parse().unwrap())
+            .collect()
+    };
+    // sent, ok, superseded, errors, ok/s, p50, p95, p99, max
+    let insert = row("insert");
+    assert!(insert[0] >= 100.0, "{text}");
+    assert_eq!(insert[3], 0.0, "{text}");
+    let query = row("query");
+    assert_eq!(query[0], insert[1], "one query per stored keyframe: {text}");
+    assert_eq!(query[1] + query[2], query[0], "{text}");
+    let exposition = server.scrape();
+    assert_eq!(
+        Server::sample(&exposition, "humem_keyframes_inserted_total"),
+        Some(insert[1])
+    );
+}

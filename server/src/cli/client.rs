@@ -66,6 +66,7 @@ fn status_error(call: &str, status: tonic::Status) -> anyhow::Error {
 /// Runs a client command.
 pub async fn run_client(command: Command) -> anyhow::Result<()> {
     match command {
+        Command::Load(args) => super::load::run(args).await?,
         Command::Serve(_) | Command::Bench(_) => bail!("not a client command"),
         Command::Insert {
             server,

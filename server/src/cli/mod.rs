@@ -5,6 +5,7 @@
 //! a script sends is exactly what the `.proto` documents.
 
 mod client;
+pub mod load;
 
 use std::net::SocketAddr;
 use std::path::PathBuf;
@@ -91,6 +92,9 @@ pub enum Command {
     /// Measure the service's parts and print a table.
     #[command(subcommand)]
     Bench(BenchCommand),
+    /// Drive a running server from simulated robots and print the achieved
+    /// rate, latency percentiles, superseded queries and errors.
+    Load(load::LoadArgs),
 }
 
 /// What `humem bench` measures.
