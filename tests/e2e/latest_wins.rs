@@ -124,3 +124,28 @@ async fn bursts_are_thinned_per_client_and_deadlines_hold() {
         .into_inner();
     assert_eq!(reply.status(), proto::QueryStatus::Answered);
 }
+
+#[tokio::test(flavor = "multi_thread")]
+async fn sigterm_lets_in_flight_queries_finish_and_exits_zero() {
+    let dir = tempfile::tempdir().unwrap();
+    let server = Server::start_with_models(dir.path());
+    let mut tasks = Vec::new();
+    for (i, robot) in ["a", "b", "c", "d"].iter().enumerate() {
+        let mut client = server.client().await;
+        let request = query(robot, i as u64);
+        tasks.push(tokio::spawn(async move { client.query(request).await }));
+    }
+    tokio::time::sleep(Duration::from_millis(20)).await;
+    let status = tokio::task::spawn_blocking(move || server.terminate())
+        .await
+        .unwrap();
+    for task in tasks {
+        let reply = task
+            .await
+            .unwrap()
+            .expect("in-flight query finished")
+            .into_inner();
+        assert_eq!(reply.status(), proto::QueryStatus::Answered);
+    }
+    assert!(status.success(), "exit status {status}");
+}
