@@ -104,6 +104,22 @@ async fn bursts_are_thinned_per_client_and_deadlines_hold() {
         );
     }
 
+    // The metrics saw it, and every queue drained.
+    let exposition = server.scrape();
+    let sample = |series: &str| Server::sample(&exposition, series).unwrap_or(0.0);
+    assert!(sample(r#"humem_queries_superseded_total{kind="loop_closure"}"#) >= 6.0);
+    assert!(sample(r#"humem_batch_size_count{model="descriptor"}"#) >= 1.0);
+    for queue in [
+        "descriptor",
+        "ocr-det",
+        "ocr-rec",
+        "queries",
+        "store_writer",
+    ] {
+        let series = format!("humem_queue_depth{{queue=\"{queue}\"}}");
+        assert_eq!(sample(&series), 0.0, "{series}");
+    }
+
     // A deadline shorter than the models take ends the query (tonic's
     // server reports it as CANCELLED "Timeout expired"), and the slot is
     // free again afterwards.

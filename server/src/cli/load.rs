@@ -46,6 +46,10 @@ pub struct LoadArgs {
     /// Descriptor length of the synthetic features.
     #[arg(long, default_value_t = 256)]
     pub dim: usize,
+    /// Queries carry the frame's content (as a relocalisation would) instead
+    /// of naming the stored keyframe, so each one runs the models too.
+    #[arg(long)]
+    pub query_content: bool,
     /// Linux process id of the server, to report its peak memory (VmHWM).
     #[arg(long)]
     pub server_pid: Option<u32>,
@@ -176,6 +180,14 @@ async fn robot(
             }),
             content: Some(content.keyframe_content(robot, tick)),
         };
+        let query_content =
+            args.query_content
+                .then(|| match content.keyframe_content(robot, tick) {
+                    proto::keyframe::Content::Image(i) => proto::query_request::Content::Image(i),
+                    proto::keyframe::Content::Features(f) => {
+                        proto::query_request::Content::Features(f)
+                    }
+                });
         let (mut inserter, mut querier) = (client.clone(), client.clone());
         let tallies = tallies.clone();
         let robot_id = robot_id.clone();
@@ -199,11 +211,19 @@ async fn robot(
                 return;
             }
             let started = Instant::now();
+            let kind = if query_content.is_some() {
+                proto::QueryKind::Relocalisation
+            } else {
+                proto::QueryKind::LoopClosure
+            };
             let answered = querier
                 .query(proto::QueryRequest {
                     robot_id,
                     session_id: "load".into(),
                     keyframe_id: Some(tick),
+                    frame_id: Some(tick * 3),
+                    content: query_content,
+                    kind: kind as i32,
                     ..Default::default()
                 })
                 .await

@@ -105,6 +105,12 @@ impl<M: BatchModel> Batcher<M> {
                             None => return,
                         }
                     };
+                    metrics::QUEUE_DEPTH
+                        .with_label_values(&[name])
+                        .sub(batch.len() as i64);
+                    metrics::BATCH_SIZE
+                        .with_label_values(&[name])
+                        .observe(batch.len() as f64);
                     run_batch(&mut model, batch);
                 })
                 .expect("spawning a model worker thread");
@@ -124,14 +130,19 @@ impl<M: BatchModel> Batcher<M> {
             reply,
             enqueued: Instant::now(),
         };
-        self.queue.try_send(job).map_err(|e| match e {
-            TrySendError::Full(_) => BatchError::Busy {
-                model: self.name,
-                queue: self.capacity,
-            },
-            TrySendError::Disconnected(_) => BatchError::Stopped { model: self.name },
+        // Counted before sending, so the worker's decrement never comes first.
+        let depth = metrics::QUEUE_DEPTH.with_label_values(&[self.name]);
+        depth.inc();
+        self.queue.try_send(job).map_err(|e| {
+            depth.dec();
+            match e {
+                TrySendError::Full(_) => BatchError::Busy {
+                    model: self.name,
+                    queue: self.capacity,
+                },
+                TrySendError::Disconnected(_) => BatchError::Stopped { model: self.name },
+            }
         })?;
-        metrics::QUEUE_DEPTH.with_label_values(&[self.name]).inc();
         answer
             .await
             .map_err(|_| BatchError::Stopped { model: self.name })?

@@ -39,17 +39,18 @@ pub(super) struct WriterHandle {
 impl WriterHandle {
     pub async fn submit(&self, mutation: Mutation) -> Result<MutationOutcome, StoreError> {
         let (reply, answer) = oneshot::channel();
-        self.queue
-            .try_send((mutation, reply))
-            .map_err(|e| match e {
+        // Counted before sending, so the writer's decrement never comes first.
+        let depth = metrics::QUEUE_DEPTH.with_label_values(&["store_writer"]);
+        depth.inc();
+        self.queue.try_send((mutation, reply)).map_err(|e| {
+            depth.dec();
+            match e {
                 mpsc::error::TrySendError::Full(_) => StoreError::QueueFull {
                     capacity: self.capacity,
                 },
                 mpsc::error::TrySendError::Closed(_) => StoreError::WriterGone,
-            })?;
-        metrics::QUEUE_DEPTH
-            .with_label_values(&["store_writer"])
-            .inc();
+            }
+        })?;
         answer.await.map_err(|_| StoreError::WriterGone)?
     }
 }
