@@ -15,6 +15,7 @@ pub mod api;
 pub mod bench;
 pub mod cli;
 pub mod config;
+pub mod eval;
 pub mod keyframe;
 pub mod metrics;
 pub mod perception;

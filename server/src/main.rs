@@ -34,6 +34,11 @@ async fn main() -> anyhow::Result<()> {
             init_logging(LogFormat::Plain, "warn,ort::logging=error");
             humem::bench::perception(config, args).await
         }
+        Command::Eval(args) => {
+            let config = Config::load(cli.config.as_deref(), figment::Figment::new())?;
+            init_logging(LogFormat::Plain, "warn,ort::logging=error");
+            humem::eval::run::run(config, args).await
+        }
         command => {
             init_logging(LogFormat::Plain, "warn");
             humem::cli::run_client(command).await

@@ -9,6 +9,7 @@ mod cli;
 mod detector;
 mod durability;
 mod errors;
+mod eval;
 mod images;
 mod latest_wins;
 mod maintenance;

@@ -67,7 +67,9 @@ fn status_error(call: &str, status: tonic::Status) -> anyhow::Error {
 pub async fn run_client(command: Command) -> anyhow::Result<()> {
     match command {
         Command::Load(args) => super::load::run(args).await?,
-        Command::Serve(_) | Command::Bench(_) => bail!("not a client command"),
+        Command::Serve(_) | Command::Bench(_) | Command::Eval(_) => {
+            bail!("not a client command")
+        }
         Command::Insert {
             server,
             file,

@@ -92,6 +92,9 @@ pub enum Command {
     /// Measure the service's parts and print a table.
     #[command(subcommand)]
     Bench(BenchCommand),
+    /// Recall@1/@5, MRR and latency on a data set, the paper's way (ablations
+    /// and degradations as options).
+    Eval(crate::eval::run::EvalArgs),
     /// Drive a running server from simulated robots and print the achieved
     /// rate, latency percentiles, superseded queries and errors.
     Load(load::LoadArgs),

@@ -1,0 +1,14 @@
+//! The evaluation harness behind `humem eval`: the paper's protocol
+//! (DESIGN.md, "Evaluation protocol") on real images.
+//!
+//! - [`dataset`]: data set folders and where their ground truth comes from;
+//! - [`truth`]: ground truth files, pose files and the paper's pose rule;
+//! - [`metrics`]: Recall@K, MRR, query selection and latency statistics;
+//! - [`degrade`]: the motion blur and exposure reduction of the conditions;
+//! - [`run`]: the run itself, its table, JSON and report.
+
+pub mod dataset;
+pub mod degrade;
+pub mod metrics;
+pub mod run;
+pub mod truth;

@@ -1,0 +1,392 @@
+//! `humem eval`: recall and latency on a data set, the paper's way.
+//!
+//! Everything runs in this process through the same code the service runs:
+//! the perception models make features of every image, the references go
+//! into a real in-memory index, and each selected query is ranked by
+//! HuMem-VPR with the layers of each configuration (ablations are
+//! configurations, not code). Queries are the eligible ones, at most
+//! `--max-queries` at evenly spaced indices. Latency is measured on 30
+//! evenly spaced queries after 10 warm-ups: perception without decoding,
+//! plus ranking; building the database is not counted.
+
+use std::collections::BTreeMap;
+use std::io::{Cursor, IsTerminal};
+use std::path::PathBuf;
+use std::time::{Duration, Instant};
+
+use anyhow::Context;
+use serde::Serialize;
+
+use super::dataset::Dataset;
+use super::degrade::Degradation;
+use super::metrics::{self, LatencyStats, Retrieval};
+use super::truth::{Kind, PoseRule};
+use crate::config::Config;
+use crate::keyframe::{Features, KeyframeKey, Pose, SemanticKeyframe};
+use crate::perception::image::Encoding;
+use crate::perception::{ImageInput, Perception};
+use crate::store::Index;
+use crate::vpr::{self, Layers, QueryObservation};
+
+/// Options of `humem eval`.
+#[derive(Debug, Clone, clap::Args)]
+pub struct EvalArgs {
+    /// Data set folder (pairs: query/ + reference/; loop: sequence/).
+    #[arg(long)]
+    pub dataset: PathBuf,
+    /// Layers to score with: scal, scal+osrl, scal+ogtl or full.
+    #[arg(long, default_value = "full")]
+    pub layers: String,
+    /// All four layer configurations in one table.
+    #[arg(long)]
+    pub ablation: bool,
+    /// Degradations of the query images, e.g. B15/D80 (repeatable); the
+    /// clean condition always runs first.
+    #[arg(long)]
+    pub degrade: Vec<Degradation>,
+    /// Most queries, evenly spaced among the eligible ones.
+    #[arg(long, default_value_t = 100)]
+    pub max_queries: usize,
+    /// Use every eligible query.
+    #[arg(long)]
+    pub all_queries: bool,
+    /// Minimum frame gap for loop data sets (default: the data set's, else 100).
+    #[arg(long)]
+    pub min_gap: Option<usize>,
+    /// Pose-based ground truth: largest distance, in metres.
+    #[arg(long, default_value_t = 5.0)]
+    pub max_distance: f64,
+    /// Pose-based ground truth: largest orientation difference, in degrees.
+    #[arg(long, default_value_t = 30.0)]
+    pub max_angle: f64,
+    /// Write every number as JSON here.
+    #[arg(long)]
+    pub json: Option<PathBuf>,
+    /// Write a Markdown report into this folder.
+    #[arg(long)]
+    pub report: Option<PathBuf>,
+}
+
+fn parse_layers(name: &str) -> anyhow::Result<(&'static str, Layers)> {
+    Ok(match name.to_ascii_lowercase().as_str() {
+        "scal" => ("SCAL", Layers::SCAL),
+        "scal+osrl" => ("SCAL+OSRL", Layers::SCAL_OSRL),
+        "scal+ogtl" => ("SCAL+OGTL", Layers::SCAL_OGTL),
+        "full" => ("Full", Layers::FULL),
+        other => anyhow::bail!("--layers {other:?}: use scal, scal+osrl, scal+ogtl or full"),
+    })
+}
+
+/// One method's numbers under one condition.
+#[derive(Debug, Clone, Serialize)]
+pub struct MethodResult {
+    pub method: String,
+    #[serde(flatten)]
+    pub retrieval: Retrieval,
+    pub latency: LatencyStats,
+    /// Mean milliseconds per stage over the timed queries.
+    pub stages_ms: BTreeMap<String, f64>,
+}
+
+/// All methods under one condition.
+#[derive(Debug, Clone, Serialize)]
+pub struct ConditionResult {
+    pub condition: String,
+    pub results: Vec<MethodResult>,
+}
+
+/// The whole run.
+#[derive(Debug, Clone, Serialize)]
+pub struct EvalReport {
+    pub dataset: String,
+    pub kind: String,
+    pub truth: String,
+    pub references: usize,
+    pub queries: usize,
+    pub min_frame_gap: Option<usize>,
+    pub conditions: Vec<ConditionResult>,
+}
+
+/// Features of one image and the perception time without decoding.
+struct Perceived {
+    features: Features,
+    took: Duration,
+    stages: Vec<(&'static str, Duration)>,
+}
+
+fn progress(len: usize, what: &str) -> indicatif::ProgressBar {
+    let bar = if std::io::stderr().is_terminal() {
+        indicatif::ProgressBar::new(len as u64)
+    } else {
+        indicatif::ProgressBar::hidden()
+    };
+    bar.set_style(
+        indicatif::ProgressStyle::with_template("{msg:>24} [{bar:30}] {pos}/{len} {elapsed}")
+            .expect("valid template")
+            .progress_chars("=> "),
+    );
+    bar.set_message(what.to_string());
+    bar
+}
+
+/// The bytes of an image, degraded (and re-encoded losslessly) if asked.
+fn image_bytes(path: &PathBuf, degradation: Option<&Degradation>) -> anyhow::Result<Vec<u8>> {
+    let bytes = std::fs::read(path).with_context(|| format!("reading {}", path.display()))?;
+    let Some(d) = degradation else {
+        return Ok(bytes);
+    };
+    let image = image::load_from_memory(&bytes)
+        .with_context(|| format!("decoding {}", path.display()))?
+        .to_rgb8();
+    let degraded = super::degrade::apply(&image, d);
+    let mut png = Vec::new();
+    degraded.write_to(&mut Cursor::new(&mut png), image::ImageFormat::Png)?;
+    Ok(png)
+}
+
+async fn perceive_all(
+    perception: &Perception,
+    paths: &[PathBuf],
+    degradation: Option<&Degradation>,
+    what: &str,
+) -> anyhow::Result<Vec<Perceived>> {
+    let bar = progress(paths.len(), what);
+    let mut out = Vec::with_capacity(paths.len());
+    for path in paths {
+        let data = image_bytes(path, degradation)?;
+        let started = Instant::now();
+        let extracted = perception
+            .extract(ImageInput {
+                encoding: Encoding::Auto,
+                data,
+                width: 0,
+                height: 0,
+                stride: 0,
+            })
+            .await
+            .with_context(|| format!("perceiving {}", path.display()))?;
+        let decode = extracted
+            .timings
+            .iter()
+            .find(|(s, _)| *s == "decode")
+            .map_or(Duration::ZERO, |(_, d)| *d);
+        out.push(Perceived {
+            features: extracted.features,
+            took: started.elapsed().saturating_sub(decode),
+            stages: extracted.timings,
+        });
+        bar.inc(1);
+    }
+    bar.finish_and_clear();
+    Ok(out)
+}
+
+/// `humem eval`.
+pub async fn run(config: Config, args: EvalArgs) -> anyhow::Result<()> {
+    let rule = PoseRule {
+        max_distance_m: args.max_distance,
+        max_angle_deg: args.max_angle,
+        min_frame_gap: args.min_gap.unwrap_or(100),
+    };
+    let dataset = Dataset::open(&args.dataset, &rule, args.min_gap)?;
+    let methods: Vec<(&'static str, Layers)> = if args.ablation {
+        ["scal", "scal+osrl", "scal+ogtl", "full"]
+            .iter()
+            .map(|l| parse_layers(l))
+            .collect::<anyhow::Result<_>>()?
+    } else {
+        vec![parse_layers(&args.layers)?]
+    };
+    let eligible: Vec<usize> = dataset.matches.keys().copied().collect();
+    let selected = if args.all_queries {
+        eligible.clone()
+    } else {
+        metrics::evenly_spaced(&eligible, args.max_queries)
+    };
+    // The first 10 of 40 evenly spaced queries warm up; the other 30 are timed.
+    let (_, timed) = metrics::latency_sample_indices(selected.len(), 10, 30);
+    let perception = Perception::load(&config.perception, config.store.scene_top_k)
+        .context("loading the perception models (run scripts/setup-models.sh)")?;
+    eprintln!(
+        "humem eval: {} ({:?}), {} references, {} of {} eligible queries, ground truth from {}",
+        dataset.name,
+        dataset.kind,
+        dataset.references.len(),
+        selected.len(),
+        eligible.len(),
+        dataset.truth_source
+    );
+
+    // The database: every reference, clean.
+    let references = perceive_all(&perception, &dataset.references, None, "references").await?;
+    let dim = references
+        .first()
+        .map_or(0, |r| r.features.descriptor.len());
+    let mut index = Index::new(dim);
+    for (i, r) in references.iter().enumerate() {
+        index.upsert(SemanticKeyframe {
+            key: KeyframeKey {
+                robot_id: "reference".into(),
+                session_id: String::new(),
+                keyframe_id: i as u64,
+            },
+            frame_id: i as u64,
+            timestamp: i as f64,
+            map_id: 0,
+            pose: Pose::default(),
+            features: r.features.clone(),
+        });
+    }
+    let reference_of: Vec<usize> = (0..index.len())
+        .map(|row| index.meta(row).key.keyframe_id as usize)
+        .collect();
+
+    let mut conditions = vec![None];
+    conditions.extend(args.degrade.iter().map(Some));
+    let mut report = EvalReport {
+        dataset: dataset.name.clone(),
+        kind: format!("{:?}", dataset.kind).to_lowercase(),
+        truth: dataset.truth_source.clone(),
+        references: dataset.references.len(),
+        queries: selected.len(),
+        min_frame_gap: (dataset.kind == Kind::Loop).then_some(dataset.min_frame_gap),
+        conditions: Vec::new(),
+    };
+    for degradation in conditions {
+        let condition = degradation.map_or_else(|| "clean".to_string(), |d| d.to_string());
+        // Query features: for a clean loop, the references themselves.
+        let fresh;
+        let queries: &[Perceived] = match (dataset.kind, degradation) {
+            (Kind::Loop, None) => &references,
+            _ => {
+                fresh = perceive_all(
+                    &perception,
+                    &dataset.queries,
+                    degradation,
+                    &format!("queries {condition}"),
+                )
+                .await?;
+                &fresh
+            }
+        };
+        let mut results = Vec::new();
+        for &(method, layers) in &methods {
+            let mut answers = Vec::with_capacity(selected.len());
+            let mut latencies = Vec::new();
+            let mut stage_sums: BTreeMap<String, f64> = BTreeMap::new();
+            for (n, &q) in selected.iter().enumerate() {
+                let history: Vec<&Features> = (0..3)
+                    .filter_map(|j| q.checked_sub(j))
+                    .map(|i| &queries[i].features)
+                    .collect();
+                let gap = dataset.min_frame_gap;
+                let eligible = |row: usize| match dataset.kind {
+                    Kind::Loop => reference_of[row] + gap <= q,
+                    Kind::Pairs => true,
+                };
+                let started = Instant::now();
+                let (ranked, times) = vpr::rank_timed(
+                    &config.vpr,
+                    layers,
+                    &QueryObservation { history },
+                    &index,
+                    &eligible,
+                );
+                let rank_took = started.elapsed();
+                // The whole SCAL top K, so MRR sees ranks beyond 5.
+                let top: Vec<usize> = ranked.iter().map(|r| reference_of[r.row]).collect();
+                answers.push((top, dataset.matches[&q].clone()));
+                if timed.contains(&n) {
+                    latencies.push(queries[q].took + rank_took);
+                    for (stage, took) in queries[q].stages.iter().chain(times.stages().iter()) {
+                        if *stage != "decode" {
+                            *stage_sums.entry(stage.to_string()).or_default() +=
+                                took.as_secs_f64() * 1e3;
+                        }
+                    }
+                }
+            }
+            let count = latencies.len().max(1) as f64;
+            results.push(MethodResult {
+                method: method.to_string(),
+                retrieval: metrics::retrieval(&answers),
+                latency: metrics::latency(&latencies),
+                stages_ms: stage_sums
+                    .into_iter()
+                    .map(|(k, v)| (k, v / count))
+                    .collect(),
+            });
+        }
+        report
+            .conditions
+            .push(ConditionResult { condition, results });
+    }
+
+    print_table(&report);
+    if let Some(path) = &args.json {
+        std::fs::write(path, serde_json::to_string_pretty(&report)?)
+            .with_context(|| format!("writing {}", path.display()))?;
+    }
+    if let Some(dir) = &args.report {
+        std::fs::create_dir_all(dir)?;
+        std::fs::write(dir.join("summary.md"), markdown(&report))?;
+        std::fs::write(
+            dir.join("results.json"),
+            serde_json::to_string_pretty(&report)?,
+        )?;
+    }
+    Ok(())
+}
+
+fn rows(report: &EvalReport) -> Vec<String> {
+    let mut rows = Vec::new();
+    for c in &report.conditions {
+        for r in &c.results {
+            rows.push(format!(
+                "| {} | {} | {:.3} | {:.3} | {:.3} | {:.1} | {:.1} | {:.1} |",
+                c.condition,
+                r.method,
+                r.retrieval.recall_at_1,
+                r.retrieval.recall_at_5,
+                r.retrieval.mrr,
+                r.latency.mean_ms,
+                r.latency.median_ms,
+                r.latency.p95_ms
+            ));
+        }
+    }
+    rows
+}
+
+const HEADER: &str = "| condition | method | R@1 | R@5 | MRR | mean ms | median ms | p95 ms |\n| --- | --- | --- | --- | --- | --- | --- | --- |";
+
+fn print_table(report: &EvalReport) {
+    println!(
+        "{} ({}, {} references, {} queries, ground truth from {})",
+        report.dataset, report.kind, report.references, report.queries, report.truth
+    );
+    println!("{HEADER}");
+    for row in rows(report) {
+        println!("{row}");
+    }
+}
+
+fn markdown(report: &EvalReport) -> String {
+    let mut md = format!(
+        "# HuMem evaluation: {}\n\n{} data set, {} references, {} queries (evenly spaced among the eligible ones), ground truth from {}{}.\nLatency: 30 evenly spaced queries after 10 warm-ups, perception without decoding plus ranking.\n\n{HEADER}\n",
+        report.dataset,
+        report.kind,
+        report.references,
+        report.queries,
+        report.truth,
+        report
+            .min_frame_gap
+            .map(|g| format!(", minimum frame gap {g}"))
+            .unwrap_or_default()
+    );
+    for row in rows(report) {
+        md.push_str(&row);
+        md.push('\n');
+    }
+    md
+}
