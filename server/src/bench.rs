@@ -54,21 +54,8 @@ fn summary(samples: &[Duration]) -> (f64, f64) {
 }
 
 fn load_images(dir: &Path) -> anyhow::Result<Vec<Vec<u8>>> {
-    let mut paths: Vec<PathBuf> = std::fs::read_dir(dir)
-        .with_context(|| format!("reading {}", dir.display()))?
-        .filter_map(|e| e.ok().map(|e| e.path()))
-        .filter(|p| {
-            matches!(
-                p.extension().and_then(|e| e.to_str()),
-                Some("jpg" | "jpeg" | "png")
-            )
-        })
-        .collect();
-    paths.sort();
+    let mut paths = crate::eval::dataset::image_paths(dir)?;
     paths.truncate(32);
-    if paths.is_empty() {
-        bail!("no JPEG or PNG images in {}", dir.display());
-    }
     paths
         .iter()
         .map(|p| std::fs::read(p).with_context(|| format!("reading {}", p.display())))
@@ -134,15 +121,7 @@ async fn drive(
                 for r in 0..requests {
                     let data = images[(c * requests + r) % images.len()].clone();
                     let sent = Instant::now();
-                    let extracted = perception
-                        .extract(ImageInput {
-                            encoding: Encoding::Auto,
-                            data,
-                            width: 0,
-                            height: 0,
-                            stride: 0,
-                        })
-                        .await?;
+                    let extracted = perception.extract(ImageInput::file(data)).await?;
                     out.push((sent.elapsed(), extracted.timings));
                 }
                 Ok::<_, anyhow::Error>(out)

@@ -14,7 +14,7 @@ use std::path::PathBuf;
 use std::sync::{Arc, Mutex};
 use std::time::{Duration, Instant};
 
-use anyhow::{bail, Context};
+use anyhow::Context;
 use hdrhistogram::Histogram;
 use tonic::transport::Channel;
 
@@ -123,22 +123,8 @@ impl Content {
     }
 }
 
-fn load_images(dir: &PathBuf) -> anyhow::Result<Vec<Vec<u8>>> {
-    let mut paths: Vec<PathBuf> = std::fs::read_dir(dir)
-        .with_context(|| format!("reading {}", dir.display()))?
-        .filter_map(|e| e.ok().map(|e| e.path()))
-        .filter(|p| {
-            matches!(
-                p.extension().and_then(|e| e.to_str()),
-                Some("jpg" | "jpeg" | "png")
-            )
-        })
-        .collect();
-    paths.sort();
-    if paths.is_empty() {
-        bail!("no JPEG or PNG images in {}", dir.display());
-    }
-    paths
+fn load_images(dir: &std::path::Path) -> anyhow::Result<Vec<Vec<u8>>> {
+    crate::eval::dataset::image_paths(dir)?
         .iter()
         .map(|p| std::fs::read(p).with_context(|| format!("reading {}", p.display())))
         .collect()

@@ -32,8 +32,8 @@ pub struct Dataset {
     pub truth_source: String,
 }
 
-/// Images of a folder, sorted by name (their index).
-fn images(dir: &Path) -> anyhow::Result<Vec<PathBuf>> {
+/// The JPEG and PNG images of a folder, sorted by name (their index).
+pub fn image_paths(dir: &Path) -> anyhow::Result<Vec<PathBuf>> {
     let mut paths: Vec<PathBuf> = std::fs::read_dir(dir)
         .with_context(|| format!("reading {}", dir.display()))?
         .filter_map(|e| e.ok().map(|e| e.path()))
@@ -83,13 +83,13 @@ impl Dataset {
             .unwrap_or_else(|| dir.display().to_string());
         let gt_path = dir.join("ground_truth.json");
         let (kind, queries, references) = if dir.join("sequence").is_dir() {
-            let seq = images(&dir.join("sequence"))?;
+            let seq = image_paths(&dir.join("sequence"))?;
             (Kind::Loop, seq.clone(), seq)
         } else if dir.join("query").is_dir() && dir.join("reference").is_dir() {
             (
                 Kind::Pairs,
-                images(&dir.join("query"))?,
-                images(&dir.join("reference"))?,
+                image_paths(&dir.join("query"))?,
+                image_paths(&dir.join("reference"))?,
             )
         } else {
             bail!(

@@ -23,7 +23,6 @@ use super::metrics::{self, LatencyStats, Retrieval};
 use super::truth::{Kind, PoseRule};
 use crate::config::Config;
 use crate::keyframe::{Features, KeyframeKey, Pose, SemanticKeyframe};
-use crate::perception::image::Encoding;
 use crate::perception::{ImageInput, Perception};
 use crate::store::Index;
 use crate::vpr::{self, Layers, QueryObservation};
@@ -156,13 +155,7 @@ async fn perceive_all(
         let data = image_bytes(path, degradation)?;
         let started = Instant::now();
         let extracted = perception
-            .extract(ImageInput {
-                encoding: Encoding::Auto,
-                data,
-                width: 0,
-                height: 0,
-                stride: 0,
-            })
+            .extract(ImageInput::file(data))
             .await
             .with_context(|| format!("perceiving {}", path.display()))?;
         let decode = extracted

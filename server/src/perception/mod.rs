@@ -43,6 +43,17 @@ pub struct ImageInput {
 }
 
 impl ImageInput {
+    /// A JPEG or PNG file's bytes (the format is recognised).
+    pub fn file(data: Vec<u8>) -> ImageInput {
+        ImageInput {
+            encoding: image::Encoding::Auto,
+            data,
+            width: 0,
+            height: 0,
+            stride: 0,
+        }
+    }
+
     fn encoded(&self) -> EncodedImage<'_> {
         EncodedImage {
             encoding: self.encoding,
