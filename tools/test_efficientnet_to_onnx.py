@@ -18,6 +18,7 @@ VENV_PYTHON = os.path.join(MODELS, '.venv', 'bin', 'python')
 if os.path.realpath(sys.prefix) != os.path.realpath(os.path.join(MODELS, '.venv')) and os.path.exists(VENV_PYTHON):
     os.execv(VENV_PYTHON, [VENV_PYTHON, os.path.abspath(__file__), MODELS])
 
+import checks  # noqa: E402  (tools/checks.py)
 import numpy as np  # noqa: E402
 import onnxruntime as ort  # noqa: E402
 from PIL import Image  # noqa: E402
@@ -84,13 +85,4 @@ def check_metadata():
     return ok, f'mean {meta["humem.mean"]}, std {meta["humem.std"]}, source {meta.get("humem.source")}'
 
 
-passed = failed = 0
-for check in (check_coffee, check_chelsea, check_descriptor, check_batch, check_non_square, check_metadata):
-    try:
-        ok, detail = check()
-    except Exception as e:  # a crash is a failure of that check, not of the run
-        ok, detail = False, f'{type(e).__name__}: {e}'
-    passed, failed = passed + ok, failed + (not ok)
-    print(f'{"PASS" if ok else "FAIL"} {check.__name__[6:]}: {detail}')
-print(f'{passed} passed, {failed} failed')
-sys.exit(1 if failed else 0)
+checks.run((check_coffee, check_chelsea, check_descriptor, check_batch, check_non_square, check_metadata))

@@ -22,6 +22,7 @@ VENV_PYTHON = os.path.join(VENV, 'bin', 'python')
 if os.path.realpath(sys.prefix) != os.path.realpath(VENV) and os.path.exists(VENV_PYTHON):
     os.execv(VENV_PYTHON, [VENV_PYTHON, os.path.abspath(__file__)])
 
+import checks  # noqa: E402  (tools/checks.py)
 import numpy as np  # noqa: E402
 import onnxruntime as ort  # noqa: E402
 
@@ -138,14 +139,5 @@ def check_expected_md():
     return all(s in text for s in ('(16, 12)', '(48, 40)', '128', '512')), 'EXPECTED.md mentions areas and centroids'
 
 
-passed = failed = 0
-for check in (check_io_names, check_seg_constants, check_e2e_constants, check_spot_values,
-              check_seg_decode, check_e2e_decode, check_expected_md):
-    try:
-        ok, detail = check()
-    except Exception as e:  # a crash is a failure of that check, not of the run
-        ok, detail = False, f'{type(e).__name__}: {e}'
-    passed, failed = passed + ok, failed + (not ok)
-    print(f'{"PASS" if ok else "FAIL"} {check.__name__[6:]}: {detail}')
-print(f'{passed} passed, {failed} failed')
-sys.exit(1 if failed else 0)
+checks.run((check_io_names, check_seg_constants, check_e2e_constants, check_spot_values,
+              check_seg_decode, check_e2e_decode, check_expected_md))

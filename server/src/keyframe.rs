@@ -57,15 +57,6 @@ impl Default for Pose {
     }
 }
 
-impl Pose {
-    pub fn to_isometry(&self) -> nalgebra::Isometry3<f64> {
-        let [w, x, y, z] = self.rotation;
-        let q = nalgebra::UnitQuaternion::from_quaternion(nalgebra::Quaternion::new(w, x, y, z));
-        let [tx, ty, tz] = self.translation;
-        nalgebra::Isometry3::from_parts(nalgebra::Translation3::new(tx, ty, tz), q)
-    }
-}
-
 /// One entry of a (truncated) scene-class distribution, e.g. Places365.
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
 pub struct SceneClass {

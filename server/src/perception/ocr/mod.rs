@@ -164,8 +164,8 @@ impl OcrModels {
         let mut detectors = Vec::new();
         let mut recognizers = Vec::new();
         for (det, rec) in sessions {
-            let det_input = first_input(&det, "ocr detector")?;
-            let det_output = first_output(&det, "ocr detector")?;
+            let (det_input, det_output) = io_names(&det, "ocr detector")?;
+            let (rec_input, rec_output) = io_names(&rec, "ocr recognizer")?;
             detectors.push(ImageModel::new(
                 "ocr detector",
                 det,
@@ -177,8 +177,8 @@ impl OcrModels {
                 ],
             )?);
             recognizers.push(LineRecognizer {
-                input: first_input(&rec, "ocr recognizer")?,
-                output: first_output(&rec, "ocr recognizer")?,
+                input: rec_input,
+                output: rec_output,
                 session: rec,
                 height: config.line_height as usize,
                 dictionary: dictionary.clone(),
@@ -191,26 +191,32 @@ impl OcrModels {
     }
 }
 
-fn first_input(session: &Session, model: &str) -> Result<String, RuntimeError> {
-    session
-        .inputs()
-        .first()
-        .map(|i| i.name().to_string())
-        .ok_or_else(|| RuntimeError::Run {
+/// The names of a session's first input and first output.
+fn io_names(session: &Session, model: &str) -> Result<(String, String), RuntimeError> {
+    let first = |names: Vec<String>, what: &str| {
+        names.into_iter().next().ok_or_else(|| RuntimeError::Run {
             model: model.into(),
-            message: "has no input".into(),
+            message: format!("has no {what}"),
         })
-}
-
-fn first_output(session: &Session, model: &str) -> Result<String, RuntimeError> {
-    session
-        .outputs()
-        .first()
-        .map(|o| o.name().to_string())
-        .ok_or_else(|| RuntimeError::Run {
-            model: model.into(),
-            message: "has no output".into(),
-        })
+    };
+    Ok((
+        first(
+            session
+                .inputs()
+                .iter()
+                .map(|i| i.name().to_string())
+                .collect(),
+            "input",
+        )?,
+        first(
+            session
+                .outputs()
+                .iter()
+                .map(|o| o.name().to_string())
+                .collect(),
+            "output",
+        )?,
+    ))
 }
 
 impl Ocr {
