@@ -11,7 +11,7 @@ use super::{Command, Output};
 use crate::proto;
 use crate::proto::place_recognition_client::PlaceRecognitionClient;
 
-async fn connect(url: &str) -> anyhow::Result<PlaceRecognitionClient<Channel>> {
+pub(crate) async fn connect(url: &str) -> anyhow::Result<PlaceRecognitionClient<Channel>> {
     let channel = Channel::from_shared(url.to_string())
         .with_context(|| format!("invalid server URL {url:?}"))?
         .connect()

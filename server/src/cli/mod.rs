@@ -4,7 +4,7 @@
 //! (field names in lowerCamelCase, 64-bit ids as strings or numbers), so what
 //! a script sends is exactly what the `.proto` documents.
 
-mod client;
+pub(crate) mod client;
 pub mod load;
 
 use std::net::SocketAddr;

@@ -5,10 +5,14 @@
 //! - [`truth`]: ground truth files, pose files and the paper's pose rule;
 //! - [`metrics`]: Recall@K, MRR, query selection and latency statistics;
 //! - [`degrade`]: the motion blur and exposure reduction of the conditions;
+//! - [`plots`]: the report's charts (accuracy–latency, recall per condition);
+//! - [`remote`]: the run measured through a service over gRPC (`--server`);
 //! - [`run`]: the run itself, its table, JSON and report.
 
 pub mod dataset;
 pub mod degrade;
 pub mod metrics;
+pub mod plots;
+pub mod remote;
 pub mod run;
 pub mod truth;

@@ -11,7 +11,7 @@
 
 use std::collections::BTreeMap;
 use std::io::{Cursor, IsTerminal};
-use std::path::PathBuf;
+use std::path::{Path, PathBuf};
 use std::time::{Duration, Instant};
 
 use anyhow::Context;
@@ -61,9 +61,13 @@ pub struct EvalArgs {
     /// Write every number as JSON here.
     #[arg(long)]
     pub json: Option<PathBuf>,
-    /// Write a Markdown report into this folder.
+    /// Write a Markdown report with charts (PNG and SVG) into this folder.
     #[arg(long)]
     pub report: Option<PathBuf>,
+    /// Measure a running service at this URL over gRPC instead of calling
+    /// the library in this process (e.g. http://127.0.0.1:50051).
+    #[arg(long, value_name = "URL")]
+    pub server: Option<String>,
 }
 
 fn parse_layers(name: &str) -> anyhow::Result<(&'static str, Layers)> {
@@ -106,6 +110,33 @@ pub struct EvalReport {
     pub conditions: Vec<ConditionResult>,
 }
 
+/// What one method gave under one condition, before it is summarised.
+#[derive(Debug, Default)]
+pub struct Samples {
+    /// Per query: the ranked reference indices and the valid matches.
+    pub answers: Vec<(Vec<usize>, Vec<usize>)>,
+    /// Latency of each timed query.
+    pub latencies: Vec<Duration>,
+    /// Milliseconds per stage, summed over the timed queries.
+    pub stage_ms: BTreeMap<String, f64>,
+}
+
+impl Samples {
+    fn summarise(self, method: &str) -> MethodResult {
+        let count = self.latencies.len().max(1) as f64;
+        MethodResult {
+            method: method.to_string(),
+            retrieval: metrics::retrieval(&self.answers),
+            latency: metrics::latency(&self.latencies),
+            stages_ms: self
+                .stage_ms
+                .into_iter()
+                .map(|(k, v)| (k, v / count))
+                .collect(),
+        }
+    }
+}
+
 /// Features of one image and the perception time without decoding.
 struct Perceived {
     features: Features,
@@ -113,7 +144,7 @@ struct Perceived {
     stages: Vec<(&'static str, Duration)>,
 }
 
-fn progress(len: usize, what: &str) -> indicatif::ProgressBar {
+pub(super) fn progress(len: usize, what: &str) -> indicatif::ProgressBar {
     let bar = if std::io::stderr().is_terminal() {
         indicatif::ProgressBar::new(len as u64)
     } else {
@@ -129,7 +160,10 @@ fn progress(len: usize, what: &str) -> indicatif::ProgressBar {
 }
 
 /// The bytes of an image, degraded (and re-encoded losslessly) if asked.
-fn image_bytes(path: &PathBuf, degradation: Option<&Degradation>) -> anyhow::Result<Vec<u8>> {
+pub(super) fn image_bytes(
+    path: &Path,
+    degradation: Option<&Degradation>,
+) -> anyhow::Result<Vec<u8>> {
     let bytes = std::fs::read(path).with_context(|| format!("reading {}", path.display()))?;
     let Some(d) = degradation else {
         return Ok(bytes);
@@ -174,6 +208,114 @@ async fn perceive_all(
     Ok(out)
 }
 
+/// The in-process database: every reference, clean, in a real index.
+struct LocalDatabase {
+    index: Index,
+    /// Index row → reference index.
+    reference_of: Vec<usize>,
+    references: Vec<Perceived>,
+}
+
+impl LocalDatabase {
+    async fn build(perception: &Perception, dataset: &Dataset) -> anyhow::Result<LocalDatabase> {
+        let references = perceive_all(perception, &dataset.references, None, "references").await?;
+        let dim = references
+            .first()
+            .map_or(0, |r| r.features.descriptor.len());
+        let mut index = Index::new(dim);
+        for (i, r) in references.iter().enumerate() {
+            index.upsert(SemanticKeyframe {
+                key: KeyframeKey {
+                    robot_id: "reference".into(),
+                    session_id: String::new(),
+                    keyframe_id: i as u64,
+                },
+                frame_id: i as u64,
+                timestamp: i as f64,
+                map_id: 0,
+                pose: Pose::default(),
+                features: r.features.clone(),
+            });
+        }
+        let reference_of = (0..index.len())
+            .map(|row| index.meta(row).key.keyframe_id as usize)
+            .collect();
+        Ok(LocalDatabase {
+            index,
+            reference_of,
+            references,
+        })
+    }
+
+    /// Ranks the selected queries of one condition with every method.
+    #[allow(clippy::too_many_arguments)]
+    async fn condition(
+        &self,
+        config: &Config,
+        perception: &Perception,
+        dataset: &Dataset,
+        degradation: Option<&Degradation>,
+        methods: &[(&'static str, Layers)],
+        selected: &[usize],
+        timed: &[usize],
+    ) -> anyhow::Result<Vec<Samples>> {
+        let condition = degradation.map_or_else(|| "clean".to_string(), |d| d.to_string());
+        // Query features: for a clean loop, the references themselves.
+        let fresh;
+        let queries: &[Perceived] = match (dataset.kind, degradation) {
+            (Kind::Loop, None) => &self.references,
+            _ => {
+                fresh = perceive_all(
+                    perception,
+                    &dataset.queries,
+                    degradation,
+                    &format!("queries {condition}"),
+                )
+                .await?;
+                &fresh
+            }
+        };
+        let mut out = Vec::new();
+        for &(_, layers) in methods {
+            let mut samples = Samples::default();
+            for (n, &q) in selected.iter().enumerate() {
+                let history: Vec<&Features> = (0..3)
+                    .filter_map(|j| q.checked_sub(j))
+                    .map(|i| &queries[i].features)
+                    .collect();
+                let gap = dataset.min_frame_gap;
+                let eligible = |row: usize| match dataset.kind {
+                    Kind::Loop => self.reference_of[row] + gap <= q,
+                    Kind::Pairs => true,
+                };
+                let started = Instant::now();
+                let (ranked, times) = vpr::rank_timed(
+                    &config.vpr,
+                    layers,
+                    &QueryObservation { history },
+                    &self.index,
+                    &eligible,
+                );
+                let rank_took = started.elapsed();
+                // The whole SCAL top K, so MRR sees ranks beyond 5.
+                let top: Vec<usize> = ranked.iter().map(|r| self.reference_of[r.row]).collect();
+                samples.answers.push((top, dataset.matches[&q].clone()));
+                if timed.contains(&n) {
+                    samples.latencies.push(queries[q].took + rank_took);
+                    for (stage, took) in queries[q].stages.iter().chain(times.stages().iter()) {
+                        if *stage != "decode" {
+                            *samples.stage_ms.entry(stage.to_string()).or_default() +=
+                                took.as_secs_f64() * 1e3;
+                        }
+                    }
+                }
+            }
+            out.push(samples);
+        }
+        Ok(out)
+    }
+}
+
 /// `humem eval`.
 pub async fn run(config: Config, args: EvalArgs) -> anyhow::Result<()> {
     let rule = PoseRule {
@@ -198,41 +340,38 @@ pub async fn run(config: Config, args: EvalArgs) -> anyhow::Result<()> {
     };
     // The first 10 of 40 evenly spaced queries warm up; the other 30 are timed.
     let (_, timed) = metrics::latency_sample_indices(selected.len(), 10, 30);
-    let perception = Perception::load(&config.perception, config.store.scene_top_k)
-        .context("loading the perception models (run scripts/setup-models.sh)")?;
     eprintln!(
-        "humem eval: {} ({:?}), {} references, {} of {} eligible queries, ground truth from {}",
+        "humem eval: {} ({:?}), {} references, {} of {} eligible queries, ground truth from {}{}",
         dataset.name,
         dataset.kind,
         dataset.references.len(),
         selected.len(),
         eligible.len(),
-        dataset.truth_source
+        dataset.truth_source,
+        args.server
+            .as_deref()
+            .map(|s| format!(", measured through the service at {s}"))
+            .unwrap_or_default()
     );
 
-    // The database: every reference, clean.
-    let references = perceive_all(&perception, &dataset.references, None, "references").await?;
-    let dim = references
-        .first()
-        .map_or(0, |r| r.features.descriptor.len());
-    let mut index = Index::new(dim);
-    for (i, r) in references.iter().enumerate() {
-        index.upsert(SemanticKeyframe {
-            key: KeyframeKey {
-                robot_id: "reference".into(),
-                session_id: String::new(),
-                keyframe_id: i as u64,
-            },
-            frame_id: i as u64,
-            timestamp: i as f64,
-            map_id: 0,
-            pose: Pose::default(),
-            features: r.features.clone(),
-        });
+    enum Backend {
+        Local(Box<Perception>, LocalDatabase),
+        Remote(Box<super::remote::Remote>),
     }
-    let reference_of: Vec<usize> = (0..index.len())
-        .map(|row| index.meta(row).key.keyframe_id as usize)
-        .collect();
+    let mut backend = match &args.server {
+        None => {
+            let perception = Perception::load(&config.perception, config.store.scene_top_k)
+                .context("loading the perception models (run scripts/setup-models.sh)")?;
+            let database = LocalDatabase::build(&perception, &dataset).await?;
+            Backend::Local(Box::new(perception), database)
+        }
+        Some(url) => {
+            let mut remote =
+                super::remote::Remote::connect(url, &dataset, config.vpr.top_k).await?;
+            remote.insert_references(&dataset).await?;
+            Backend::Remote(Box::new(remote))
+        }
+    };
 
     let mut conditions = vec![None];
     conditions.extend(args.degrade.iter().map(Some));
@@ -247,72 +386,38 @@ pub async fn run(config: Config, args: EvalArgs) -> anyhow::Result<()> {
     };
     for degradation in conditions {
         let condition = degradation.map_or_else(|| "clean".to_string(), |d| d.to_string());
-        // Query features: for a clean loop, the references themselves.
-        let fresh;
-        let queries: &[Perceived] = match (dataset.kind, degradation) {
-            (Kind::Loop, None) => &references,
-            _ => {
-                fresh = perceive_all(
-                    &perception,
-                    &dataset.queries,
-                    degradation,
-                    &format!("queries {condition}"),
-                )
-                .await?;
-                &fresh
+        let samples = match &mut backend {
+            Backend::Local(perception, database) => {
+                database
+                    .condition(
+                        &config,
+                        perception,
+                        &dataset,
+                        degradation,
+                        &methods,
+                        &selected,
+                        &timed,
+                    )
+                    .await?
+            }
+            Backend::Remote(remote) => {
+                remote
+                    .condition(&dataset, degradation, &methods, &selected, &timed)
+                    .await?
             }
         };
-        let mut results = Vec::new();
-        for &(method, layers) in &methods {
-            let mut answers = Vec::with_capacity(selected.len());
-            let mut latencies = Vec::new();
-            let mut stage_sums: BTreeMap<String, f64> = BTreeMap::new();
-            for (n, &q) in selected.iter().enumerate() {
-                let history: Vec<&Features> = (0..3)
-                    .filter_map(|j| q.checked_sub(j))
-                    .map(|i| &queries[i].features)
-                    .collect();
-                let gap = dataset.min_frame_gap;
-                let eligible = |row: usize| match dataset.kind {
-                    Kind::Loop => reference_of[row] + gap <= q,
-                    Kind::Pairs => true,
-                };
-                let started = Instant::now();
-                let (ranked, times) = vpr::rank_timed(
-                    &config.vpr,
-                    layers,
-                    &QueryObservation { history },
-                    &index,
-                    &eligible,
-                );
-                let rank_took = started.elapsed();
-                // The whole SCAL top K, so MRR sees ranks beyond 5.
-                let top: Vec<usize> = ranked.iter().map(|r| reference_of[r.row]).collect();
-                answers.push((top, dataset.matches[&q].clone()));
-                if timed.contains(&n) {
-                    latencies.push(queries[q].took + rank_took);
-                    for (stage, took) in queries[q].stages.iter().chain(times.stages().iter()) {
-                        if *stage != "decode" {
-                            *stage_sums.entry(stage.to_string()).or_default() +=
-                                took.as_secs_f64() * 1e3;
-                        }
-                    }
-                }
-            }
-            let count = latencies.len().max(1) as f64;
-            results.push(MethodResult {
-                method: method.to_string(),
-                retrieval: metrics::retrieval(&answers),
-                latency: metrics::latency(&latencies),
-                stages_ms: stage_sums
-                    .into_iter()
-                    .map(|(k, v)| (k, v / count))
-                    .collect(),
-            });
-        }
+        let results = methods
+            .iter()
+            .zip(samples)
+            .map(|(&(method, _), s)| s.summarise(method))
+            .collect();
         report
             .conditions
             .push(ConditionResult { condition, results });
+    }
+    if let Backend::Remote(remote) = &mut backend {
+        let erased = remote.clean_up().await?;
+        eprintln!("humem eval: removed the run's {erased} keyframes from the server");
     }
 
     print_table(&report);
@@ -327,6 +432,12 @@ pub async fn run(config: Config, args: EvalArgs) -> anyhow::Result<()> {
             dir.join("results.json"),
             serde_json::to_string_pretty(&report)?,
         )?;
+        let charts = super::plots::write_all(&report, dir)?;
+        eprintln!(
+            "humem eval: report in {} (summary.md, results.json, {})",
+            dir.display(),
+            charts.join(", ")
+        );
     }
     Ok(())
 }
@@ -381,5 +492,8 @@ fn markdown(report: &EvalReport) -> String {
         md.push_str(&row);
         md.push('\n');
     }
+    md.push_str(
+        "\n![Recall@1 against median latency](accuracy_latency.png)\n\n![Recall per condition](recall_per_condition.png)\n",
+    );
     md
 }
