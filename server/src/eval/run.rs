@@ -355,7 +355,7 @@ pub async fn run(config: Config, args: EvalArgs) -> anyhow::Result<()> {
     );
 
     enum Backend {
-        Local(Box<Perception>, LocalDatabase),
+        Local(Box<(Perception, LocalDatabase)>),
         Remote(Box<super::remote::Remote>),
     }
     let mut backend = match &args.server {
@@ -363,7 +363,7 @@ pub async fn run(config: Config, args: EvalArgs) -> anyhow::Result<()> {
             let perception = Perception::load(&config.perception, config.store.scene_top_k)
                 .context("loading the perception models (run scripts/setup-models.sh)")?;
             let database = LocalDatabase::build(&perception, &dataset).await?;
-            Backend::Local(Box::new(perception), database)
+            Backend::Local(Box::new((perception, database)))
         }
         Some(url) => {
             let mut remote =
@@ -387,7 +387,8 @@ pub async fn run(config: Config, args: EvalArgs) -> anyhow::Result<()> {
     for degradation in conditions {
         let condition = degradation.map_or_else(|| "clean".to_string(), |d| d.to_string());
         let samples = match &mut backend {
-            Backend::Local(perception, database) => {
+            Backend::Local(local) => {
+                let (perception, database) = &**local;
                 database
                     .condition(
                         &config,
