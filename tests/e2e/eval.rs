@@ -1,34 +1,62 @@
-//! `humem eval` on a real data set: the JSON has every field, in range.
+//! `humem eval` on a real data set: the JSON has every field, in range, the
+//! report has its charts, and measuring through a running service gives the
+//! same rankings as the in-process run.
 
+use std::path::Path;
 use std::process::Command;
 
-use crate::harness::{datasets, models_dir};
+use crate::harness::{datasets, models_dir, Server};
 
-#[test]
-fn eval_on_gardens_daynight_reports_every_number() {
-    let Some(datasets) = datasets() else { return };
-    let out_dir = tempfile::tempdir().unwrap();
-    let json = out_dir.path().join("eval.json");
-    let report = out_dir.path().join("report");
+/// Runs `humem eval` on gardens-daynight with the ablation and B15/D80 into
+/// `out`; returns the JSON and the table printed.
+fn eval_gardens(datasets: &Path, out: &Path, extra: &[&str]) -> (serde_json::Value, String) {
+    let json = out.join("eval.json");
     let output = Command::new(env!("CARGO_BIN_EXE_humem"))
         .args(["eval", "--ablation", "--degrade", "B15/D80", "--dataset"])
         .arg(datasets.join("gardens-daynight"))
         .arg("--json")
         .arg(&json)
         .arg("--report")
-        .arg(&report)
+        .arg(out.join("report"))
+        .args(extra)
         .env("HUMEM_PERCEPTION__MODELS_DIR", models_dir())
         .output()
         .unwrap();
-    let stdout = String::from_utf8_lossy(&output.stdout);
+    let stdout = String::from_utf8_lossy(&output.stdout).to_string();
     assert!(
         output.status.success(),
         "{stdout}{}",
         String::from_utf8_lossy(&output.stderr)
     );
+    let value = serde_json::from_slice(&std::fs::read(&json).unwrap()).unwrap();
+    (value, stdout)
+}
+
+/// (condition, method, R@1, R@5, MRR) of every row.
+fn recalls(value: &serde_json::Value) -> Vec<(String, String, f64, f64, f64)> {
+    let mut rows = Vec::new();
+    for c in value["conditions"].as_array().unwrap() {
+        for r in c["results"].as_array().unwrap() {
+            rows.push((
+                c["condition"].as_str().unwrap().to_string(),
+                r["method"].as_str().unwrap().to_string(),
+                r["recall_at_1"].as_f64().unwrap(),
+                r["recall_at_5"].as_f64().unwrap(),
+                r["mrr"].as_f64().unwrap(),
+            ));
+        }
+    }
+    rows
+}
+
+#[test]
+fn eval_on_gardens_daynight_reports_every_number() {
+    let Some(datasets) = datasets() else { return };
+    let out_dir = tempfile::tempdir().unwrap();
+    let report = out_dir.path().join("report");
+    let (value, stdout) = eval_gardens(&datasets, out_dir.path(), &[]);
     assert!(stdout.contains("| clean | Full |"), "{stdout}");
 
-    let value: serde_json::Value = serde_json::from_slice(&std::fs::read(&json).unwrap()).unwrap();
     assert_eq!(value["dataset"], "gardens-daynight");
     assert_eq!(value["kind"], "pairs");
     assert_eq!(value["queries"], 10);
@@ -60,4 +88,41 @@ fn eval_on_gardens_daynight_reports_every_number() {
     }
     let summary = std::fs::read_to_string(report.join("summary.md")).unwrap();
     assert!(summary.contains("| B15/D80 | SCAL |"), "{summary}");
+    for chart in ["accuracy_latency", "recall_per_condition"] {
+        assert!(summary.contains(&format!("({chart}.png)")), "{summary}");
+        let png = image::open(report.join(format!("{chart}.png"))).unwrap();
+        assert_eq!((png.width(), png.height()), (800, 520));
+        assert!(report.join(format!("{chart}.svg")).is_file());
+    }
+}
+
+#[test]
+fn eval_through_the_service_ranks_as_the_library_does() {
+    let Some(datasets) = datasets() else { return };
+    let local_dir = tempfile::tempdir().unwrap();
+    let (local, _) = eval_gardens(&datasets, local_dir.path(), &[]);
+
+    let data = tempfile::tempdir().unwrap();
+    let server = Server::start_with_models(data.path());
+    let remote_dir = tempfile::tempdir().unwrap();
+    let (remote, stdout) = eval_gardens(
+        &datasets,
+        remote_dir.path(),
+        &["--server", server.url.as_str()],
+    );
+    // Same models, same features, same ranking code: the same numbers.
+    assert_eq!(recalls(&remote), recalls(&local), "{stdout}");
+    assert!(
+        remote["conditions"][0]["results"][0]["latency"]["median_ms"]
+            .as_f64()
+            .is_some_and(|ms| ms > 0.0)
+    );
+    // The run removed what it stored.
+    let stats = Command::new(env!("CARGO_BIN_EXE_humem"))
+        .args(["stats", "--server", server.url.as_str()])
+        .output()
+        .unwrap();
+    let stats: serde_json::Value = serde_json::from_slice(&stats.stdout).unwrap();
+    // proto3 JSON leaves out a zero count.
+    assert_eq!(stats.get("keyframes"), None, "{stats}");
 }
