@@ -1,6 +1,7 @@
 //! The evaluation harness behind `humem eval`: the paper's protocol
 //! (DESIGN.md, "Evaluation protocol") on real images.
 //!
+//! - [`annotations`]: ground-truth objects from instance masks (`--objects annotations`);
 //! - [`dataset`]: data set folders and where their ground truth comes from;
 //! - [`truth`]: ground truth files, pose files and the paper's pose rule;
 //! - [`metrics`]: Recall@K, MRR, query selection and latency statistics;
@@ -9,6 +10,7 @@
 //! - [`remote`]: the run measured through a service over gRPC (`--server`);
 //! - [`run`]: the run itself, its table, JSON and report.
 
+pub mod annotations;
 pub mod dataset;
 pub mod degrade;
 pub mod metrics;

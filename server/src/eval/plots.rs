@@ -267,6 +267,7 @@ mod tests {
             references: 10,
             queries: 10,
             min_frame_gap: None,
+            objects: crate::eval::run::ObjectSource::Models,
             conditions: vec![
                 ConditionResult {
                     condition: "clean".into(),

@@ -17,6 +17,7 @@ use std::time::{Duration, Instant};
 use anyhow::Context;
 use serde::Serialize;
 
+use super::annotations::{self, Catalog};
 use super::dataset::Dataset;
 use super::degrade::Degradation;
 use super::metrics::{self, LatencyStats, Retrieval};
@@ -68,6 +69,21 @@ pub struct EvalArgs {
     /// the library in this process (e.g. http://127.0.0.1:50051).
     #[arg(long, value_name = "URL")]
     pub server: Option<String>,
+    /// Where objects come from: the perception models, or the data set's
+    /// instance masks (`annotations`, in-process only) to measure the object
+    /// and text layers without a detector's errors.
+    #[arg(long, value_enum, default_value_t = ObjectSource::Models)]
+    pub objects: ObjectSource,
+}
+
+/// Source of the objects of each image.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, clap::ValueEnum, Serialize)]
+#[serde(rename_all = "lowercase")]
+pub enum ObjectSource {
+    /// What the service's own models see.
+    Models,
+    /// The data set's ground-truth instance masks, with OCR text on them.
+    Annotations,
 }
 
 fn parse_layers(name: &str) -> anyhow::Result<(&'static str, Layers)> {
@@ -107,6 +123,8 @@ pub struct EvalReport {
     pub references: usize,
     pub queries: usize,
     pub min_frame_gap: Option<usize>,
+    /// Where the objects came from: `models` or `annotations`.
+    pub objects: ObjectSource,
     pub conditions: Vec<ConditionResult>,
 }
 
@@ -181,6 +199,7 @@ async fn perceive_all(
     perception: &Perception,
     paths: &[PathBuf],
     degradation: Option<&Degradation>,
+    annotations: Option<&Catalog>,
     what: &str,
 ) -> anyhow::Result<Vec<Perceived>> {
     let bar = progress(paths.len(), what);
@@ -197,8 +216,12 @@ async fn perceive_all(
             .iter()
             .find(|(s, _)| *s == "decode")
             .map_or(Duration::ZERO, |(_, d)| *d);
+        let mut features = extracted.features;
+        if let Some(catalog) = annotations {
+            annotations::apply(&mut features, &annotations::read_mask(path)?, catalog);
+        }
         out.push(Perceived {
-            features: extracted.features,
+            features,
             took: started.elapsed().saturating_sub(decode),
             stages: extracted.timings,
         });
@@ -214,11 +237,24 @@ struct LocalDatabase {
     /// Index row → reference index.
     reference_of: Vec<usize>,
     references: Vec<Perceived>,
+    /// Ground-truth objects in place of the detector's, if asked.
+    annotations: Option<Catalog>,
 }
 
 impl LocalDatabase {
-    async fn build(perception: &Perception, dataset: &Dataset) -> anyhow::Result<LocalDatabase> {
-        let references = perceive_all(perception, &dataset.references, None, "references").await?;
+    async fn build(
+        perception: &Perception,
+        dataset: &Dataset,
+        annotations: Option<Catalog>,
+    ) -> anyhow::Result<LocalDatabase> {
+        let references = perceive_all(
+            perception,
+            &dataset.references,
+            None,
+            annotations.as_ref(),
+            "references",
+        )
+        .await?;
         let dim = references
             .first()
             .map_or(0, |r| r.features.descriptor.len());
@@ -244,6 +280,7 @@ impl LocalDatabase {
             index,
             reference_of,
             references,
+            annotations,
         })
     }
 
@@ -269,6 +306,7 @@ impl LocalDatabase {
                     perception,
                     &dataset.queries,
                     degradation,
+                    self.annotations.as_ref(),
                     &format!("queries {condition}"),
                 )
                 .await?;
@@ -362,10 +400,17 @@ pub async fn run(config: Config, args: EvalArgs) -> anyhow::Result<()> {
         None => {
             let perception = Perception::load(&config.perception, config.store.scene_top_k)
                 .context("loading the perception models (run scripts/setup-models.sh)")?;
-            let database = LocalDatabase::build(&perception, &dataset).await?;
+            let annotations = match args.objects {
+                ObjectSource::Models => None,
+                ObjectSource::Annotations => Some(Catalog::find(&args.dataset)?),
+            };
+            let database = LocalDatabase::build(&perception, &dataset, annotations).await?;
             Backend::Local(Box::new((perception, database)))
         }
         Some(url) => {
+            if args.objects == ObjectSource::Annotations {
+                anyhow::bail!("--objects annotations replaces perception, so it runs in-process only, not with --server");
+            }
             let mut remote =
                 super::remote::Remote::connect(url, &dataset, config.vpr.top_k).await?;
             remote.insert_references(&dataset).await?;
@@ -382,6 +427,7 @@ pub async fn run(config: Config, args: EvalArgs) -> anyhow::Result<()> {
         references: dataset.references.len(),
         queries: selected.len(),
         min_frame_gap: (dataset.kind == Kind::Loop).then_some(dataset.min_frame_gap),
+        objects: args.objects,
         conditions: Vec::new(),
     };
     for degradation in conditions {
