@@ -39,20 +39,20 @@ async fn bad_requests_are_refused_with_the_field_named_and_change_nothing() {
             Box::new(|k| k.pose.as_mut().unwrap().rotation = Some(proto::Quaternion::default())),
         ),
         (
-            "keyframe.features.descriptor[3]: not a finite number",
-            Box::new(|k| features(k).descriptor[3] = f32::NAN),
+            "keyframe.features.global_descriptor[3]: not a finite number",
+            Box::new(|k| features(k).global_descriptor[3] = f32::NAN),
         ),
         (
-            "keyframe.features.descriptor: has 65 values but this store holds 64-value descriptors",
-            Box::new(|k| features(k).descriptor.push(0.5)),
+            "keyframe.features.global_descriptor: has 65 values but this store holds 64-value descriptors",
+            Box::new(|k| features(k).global_descriptor.push(0.5)),
         ),
         (
-            "keyframe.features.descriptor: 9000 values, at most 8192",
-            Box::new(|k| features(k).descriptor = vec![0.1; 9000]),
+            "keyframe.features.global_descriptor: 9000 values, at most 8192",
+            Box::new(|k| features(k).global_descriptor = vec![0.1; 9000]),
         ),
         (
-            "keyframe.features.descriptor: all values are zero",
-            Box::new(|k| features(k).descriptor = vec![0.0; 64]),
+            "keyframe.features.global_descriptor: all values are zero",
+            Box::new(|k| features(k).global_descriptor = vec![0.0; 64]),
         ),
         (
             "keyframe.features.objects[0].confidence: 1.5 is outside [0, 1]",
@@ -158,10 +158,10 @@ async fn bad_requests_are_refused_with_the_field_named_and_change_nothing() {
             Box::new(|q| q.keyframe_id = None),
         ),
         (
-            "features.descriptor: has 3 values but this store holds 64-value descriptors",
+            "features.global_descriptor: has 3 values but this store holds 64-value descriptors",
             Box::new(|q| {
                 q.content = Some(proto::query_request::Content::Features(proto::Features {
-                    descriptor: vec![1.0, 2.0, 3.0],
+                    global_descriptor: vec![1.0, 2.0, 3.0],
                     ..Default::default()
                 }))
             }),

@@ -87,7 +87,7 @@ async fn rendered_text_is_read_back_and_grounds_a_match() {
     assert!(features.objects.iter().all(|o| o.class_name == "sign"));
     // The first line sits in the upper part of the image, the second below.
     assert!(features.objects[0].y < features.objects[1].y);
-    assert_eq!(features.descriptor.len(), 1280);
+    assert_eq!(features.global_descriptor.len(), 1280);
     assert!(!features.scene.is_empty());
     let stages: Vec<&str> = reply.timings.iter().map(|t| t.stage.as_str()).collect();
     assert_eq!(stages, ["decode", "descriptor", "ocr_det", "ocr_rec"]);

@@ -102,7 +102,7 @@ pub fn features(
     objects: Vec<proto::ObjectObservation>,
 ) -> proto::Features {
     proto::Features {
-        descriptor,
+        global_descriptor: descriptor,
         scene: vec![proto::SceneClass {
             class_id: scene_class,
             probability: 0.6,

@@ -89,7 +89,7 @@ pub fn timings(timings: &[(&'static str, Duration)]) -> Vec<proto::StageTiming> 
 
 pub fn features(f: &Features) -> proto::Features {
     proto::Features {
-        descriptor: f.descriptor.clone(),
+        global_descriptor: f.descriptor.clone(),
         scene: f
             .scene
             .iter()
@@ -154,7 +154,7 @@ impl From<StoreError> for Status {
     fn from(e: StoreError) -> Status {
         match e {
             StoreError::DimensionMismatch { .. } => {
-                Status::invalid_argument(format!("features.descriptor: {e}"))
+                Status::invalid_argument(format!("features.global_descriptor: {e}"))
             }
             StoreError::QueueFull { .. } => {
                 let mut status = Status::resource_exhausted(e.to_string());

@@ -118,7 +118,7 @@ impl PlaceRecognitionService {
             let found = kf.features.descriptor.len();
             if found != expected {
                 return Err(InvalidField {
-                    field: format!("{}.features.descriptor", field(i)),
+                    field: format!("{}.features.global_descriptor", field(i)),
                     reason: format!(
                         "has {found} values but this store holds {expected}-value descriptors"
                     ),

@@ -167,7 +167,7 @@ pub fn pose(field: &str, pose: Option<&proto::Pose>) -> Result<Pose> {
 
 /// Precomputed features, normalised.
 pub fn features(field: &str, f: &proto::Features, limits: &Limits) -> Result<Features> {
-    let descriptor = descriptor(&format!("{field}.descriptor"), &f.descriptor)?;
+    let descriptor = descriptor(&format!("{field}.global_descriptor"), &f.global_descriptor)?;
     let scene = scene(&format!("{field}.scene"), &f.scene, limits.scene_top_k)?;
     if f.objects.len() > MAX_OBJECTS {
         return Err(invalid(

@@ -115,7 +115,7 @@ impl Content {
                 let phase = (tick % 200) as f32 * 0.03 + robot as f32;
                 let descriptor = (0..*dim).map(|i| (phase + i as f32 * 0.37).sin()).collect();
                 proto::keyframe::Content::Features(proto::Features {
-                    descriptor,
+                    global_descriptor: descriptor,
                     ..Default::default()
                 })
             }

@@ -109,7 +109,7 @@ pub fn run(
     };
     if index.dim() != 0 && current.descriptor.len() != index.dim() {
         return Err(InvalidField {
-            field: "features.descriptor".into(),
+            field: "features.global_descriptor".into(),
             reason: format!(
                 "has {} values but this store holds {}-value descriptors",
                 current.descriptor.len(),

@@ -31,7 +31,7 @@ fn keyframe_msg() -> proto::Keyframe {
             }),
         }),
         content: Some(proto::keyframe::Content::Features(proto::Features {
-            descriptor: vec![3.0, 4.0],
+            global_descriptor: vec![3.0, 4.0],
             scene: vec![
                 proto::SceneClass {
                     class_id: 5,
@@ -124,7 +124,7 @@ fn a_query_with_features_needs_a_frame_id() {
     let q = proto::QueryRequest {
         robot_id: "r".into(),
         content: Some(proto::query_request::Content::Features(proto::Features {
-            descriptor: vec![1.0],
+            global_descriptor: vec![1.0],
             ..Default::default()
         })),
         ..Default::default()
