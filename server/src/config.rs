@@ -159,10 +159,12 @@ impl Config {
             }
             figment = figment.merge(Toml::file(file));
         }
-        // HUMEM_CONFIG names the file and HUMEM_SERVER_URL is for the client;
-        // neither is a setting.
+        // HUMEM_CONFIG names the file, HUMEM_SERVER_URL is for the client,
+        // HUMEM_BIN names the binary for test scripts and HUMEM_ORT_PACKAGE
+        // is read by scripts/setup-models.sh: none is a setting.
+        const NOT_SETTINGS: [&str; 4] = ["config", "server_url", "bin", "ort_package"];
         let env = Env::prefixed("HUMEM_")
-            .filter(|key| key != "config" && key != "server_url")
+            .filter(|key| !NOT_SETTINGS.contains(&key.as_str()))
             .split("__");
         let config: Config = figment
             .merge(env)

@@ -28,10 +28,27 @@ fn register<C: prometheus::core::Collector + Clone + 'static>(collector: C) -> C
     collector
 }
 
-/// Latency buckets from 100 µs to 10 s.
+/// Latency buckets from 250 µs to 10 s, with edges at the budgets a SLAM
+/// operator sets (e.g. 100 ms per frame, 250 ms per query) so quantiles near
+/// them are not smeared over a wide bucket.
 fn latency_buckets() -> Vec<f64> {
-    prometheus::exponential_buckets(0.0001, 2.5, 12).expect("valid buckets")
+    vec![
+        0.00025, 0.0005, 0.001, 0.0025, 0.005, 0.01, 0.025, 0.05, 0.1, 0.15, 0.25, 0.5, 1.0, 2.5,
+        5.0, 10.0,
+    ]
 }
+
+/// Always 1, labelled with the server's version, to tell a fleet's
+/// sidecars apart.
+pub static BUILD_INFO: LazyLock<IntGaugeVec> = LazyLock::new(|| {
+    register(
+        IntGaugeVec::new(
+            Opts::new("humem_build_info", "HuMem server version (always 1)"),
+            &["version"],
+        )
+        .unwrap(),
+    )
+});
 
 /// Requests per RPC and gRPC status code.
 pub static RPC_REQUESTS: LazyLock<IntCounterVec> = LazyLock::new(|| {
@@ -229,6 +246,24 @@ pub fn render(store: &Store) -> String {
 /// Touches every static so all metric families exist from the start (a
 /// dashboard should see zeros, not missing series).
 pub fn init() {
+    BUILD_INFO
+        .with_label_values(&[env!("CARGO_PKG_VERSION")])
+        .set(1);
+    // The process's memory, CPU time and open files (process_* metrics).
+    #[cfg(target_os = "linux")]
+    {
+        static PROCESS: std::sync::Once = std::sync::Once::new();
+        PROCESS.call_once(|| {
+            REGISTRY
+                .register(Box::new(
+                    prometheus::process_collector::ProcessCollector::for_self(),
+                ))
+                .expect("registered once");
+        });
+    }
+    for kind in ["loop_closure", "relocalisation"] {
+        QUERIES_SUPERSEDED.with_label_values(&[kind]);
+    }
     LazyLock::force(&RPC_REQUESTS);
     LazyLock::force(&RPC_DURATION);
     LazyLock::force(&STAGE_DURATION);
