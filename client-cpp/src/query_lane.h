@@ -1,0 +1,63 @@
+// Job: one query kind's lane: a latest-wins slot and the thread that sends
+// its queries one at a time. Submitting while a query is pending resolves
+// the pending ticket as kSuperseded; the lane's thread takes the pending
+// query, sends it (fail-fast, with the query deadline) and resolves its
+// ticket with the answer, the server's QUERY_STATUS_SUPERSEDED, or the error.
+#ifndef HUMEM_SRC_QUERY_LANE_H_
+#define HUMEM_SRC_QUERY_LANE_H_
+
+#include <chrono>
+#include <functional>
+#include <mutex>
+#include <thread>
+
+#include "humem/types.h"
+#include "humem/v1/humem.grpc.pb.h"
+#include "latest_wins_slot.h"
+#include "result_board.h"
+#include "rpc.h"
+
+namespace humem::internal {
+
+class QueryLane {
+ public:
+  using OnResult = std::function<void(const QueryResult&)>;
+
+  QueryLane(QueryKind kind, v1::PlaceRecognition::Stub* stub, CallRegistry* calls, ResultBoard* board,
+            std::chrono::milliseconds timeout, OnResult on_result);
+  ~QueryLane();
+  QueryLane(const QueryLane&) = delete;
+  QueryLane& operator=(const QueryLane&) = delete;
+
+  // Issues a ticket and makes the query this kind's pending one.
+  Ticket Submit(v1::QueryRequest request);
+
+  // Refuses later queries, resolves the pending one as CANCELLED and joins
+  // the thread (the caller cancels the call in flight through the
+  // CallRegistry first). Idempotent.
+  void Close();
+
+ private:
+  struct Pending {
+    Ticket ticket = 0;
+    v1::QueryRequest request;
+  };
+
+  void Run();
+  void Publish(const QueryResult& result, bool from_server);
+  QueryResult Cancelled(Ticket ticket, const char* why) const;
+
+  const QueryKind kind_;
+  v1::PlaceRecognition::Stub* const stub_;
+  CallRegistry* const calls_;
+  ResultBoard* const board_;
+  const std::chrono::milliseconds timeout_;
+  const OnResult on_result_;
+  std::mutex submit_mutex_;  // tickets reach the slot in issue order
+  LatestWinsSlot<Pending> slot_;
+  std::thread thread_;
+};
+
+}  // namespace humem::internal
+
+#endif  // HUMEM_SRC_QUERY_LANE_H_

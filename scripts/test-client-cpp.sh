@@ -1,0 +1,45 @@
+#!/usr/bin/env bash
+# Tests the C++ client library (client-cpp/): configures and builds it
+# (Release, -j2), runs its tests with ctest against the real server binary,
+# then installs it to a temporary prefix and builds and runs a tiny C++11
+# consumer project with find_package(humem_client), proving the CMake
+# package and the C++11-compatible headers.
+#
+# The server binary comes from HUMEM_BIN (default: target/debug/humem);
+# build it first (`cargo build --locked --bin humem`).
+set -euo pipefail
+cd "$(dirname "$0")/.."
+root=$(pwd)
+
+bin=${HUMEM_BIN:-target/debug/humem}
+case "$bin" in /*) ;; *) bin="$root/$bin" ;; esac
+if [ ! -x "$bin" ]; then
+    echo "test-client-cpp: humem binary not found at $bin" >&2
+    echo "  build it with 'cargo build --locked --bin humem', or set HUMEM_BIN" >&2
+    exit 1
+fi
+export HUMEM_BIN="$bin"
+jobs=${JOBS:-2}
+
+echo "== client-cpp: configure and build"
+cmake -S client-cpp -B client-cpp/build -DCMAKE_BUILD_TYPE=Release -DHUMEM_BIN="$bin"
+cmake --build client-cpp/build -j"$jobs"
+
+echo "== client-cpp: tests (server: $bin)"
+ctest --test-dir client-cpp/build --output-on-failure -j"$jobs"
+
+echo "== client-cpp: install and build a C++11 consumer with find_package(humem_client)"
+tmp=$(mktemp -d)
+trap 'rm -rf "$tmp"' EXIT
+cmake --install client-cpp/build --prefix "$tmp/prefix"
+cmake -S client-cpp/tests/consumer -B "$tmp/consumer" -DCMAKE_BUILD_TYPE=Release \
+    -DCMAKE_PREFIX_PATH="$tmp/prefix"
+if ! cmake --build "$tmp/consumer" --verbose -j"$jobs" >"$tmp/consumer.log" 2>&1; then
+    cat "$tmp/consumer.log" >&2
+    echo "test-client-cpp: the C++11 consumer did not build" >&2
+    exit 1
+fi
+grep -q -e '-std=c++11' "$tmp/consumer.log" \
+    || { cat "$tmp/consumer.log" >&2; echo "test-client-cpp: the consumer was not compiled with -std=c++11" >&2; exit 1; }
+"$tmp/consumer/consumer"
+echo "== client-cpp: OK"
