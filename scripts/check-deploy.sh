@@ -32,6 +32,8 @@ LOAD_SECONDS=${CHECK_DEPLOY_LOAD_SECONDS:-20}
 # The service reads HUMEM_* settings from the environment: none of the caller's.
 while read -r var; do unset "$var"; done < <(compgen -e | grep '^HUMEM_' || true)
 unset RUST_LOG
+# No __pycache__ in deploy/checks.
+export PYTHONDONTWRITEBYTECODE=1
 
 die() { echo "check-deploy: ERROR: $*" >&2; exit 1; }
 step() { echo; echo "== $*"; }
@@ -49,6 +51,7 @@ cleanup() {
     rm -rf "$TMP"
 }
 trap cleanup EXIT
+trap 'exit 130' INT TERM
 
 # --- tools --------------------------------------------------------------------------------------
 command -v promtool >/dev/null && command -v prometheus >/dev/null \
@@ -68,8 +71,10 @@ fi
 [[ -x $BIN ]] || die "no humem binary at $BIN (set HUMEM_BIN)"
 echo "humem binary: $BIN ($("$BIN" --version))"
 
-# Starts `humem serve ARGS...` in the background with ENV (an array of
-# KEY=VALUE named by $1); sets SERVER_PID, SERVER_GRPC, SERVER_METRICS.
+# start_humem NAME ARGS...: `humem serve ARGS...` in the background, with the
+# KEY=VALUE settings of the array SERVER_ENV, its stdout in $TMP/NAME.out and
+# stderr in $TMP/NAME.err; waits for "humem listening on" and sets SERVER_PID,
+# SERVER_GRPC and SERVER_METRICS.
 start_humem() {
     local name=$1 out=$TMP/$1.out
     shift

