@@ -2,7 +2,9 @@
 # The project's test command (README "Test"): installs the models if they
 # are missing, checks the model converter on real pictures, then formatting,
 # lints and every Rust test, unit and end-to-end (the e2e tests start the
-# real `humem` binary and run the real models).
+# real `humem` binary and run the real models), then the C++ client's tests
+# against that binary, and the deployment files checked with the real
+# Prometheus, promtool and systemd-analyze.
 set -euo pipefail
 cd "$(dirname "$0")/.."
 
@@ -17,3 +19,7 @@ echo "== cargo clippy"
 cargo clippy --workspace --all-targets --locked -- -D warnings
 echo "== cargo test"
 cargo test --workspace --locked
+echo "== client-cpp (scripts/test-client-cpp.sh)"
+HUMEM_BIN=target/debug/humem scripts/test-client-cpp.sh
+echo "== deployment checks (scripts/check-deploy.sh)"
+HUMEM_BIN=target/debug/humem scripts/check-deploy.sh
