@@ -2,6 +2,7 @@
 //! (DESIGN.md, "Evaluation protocol") on real images.
 //!
 //! - [`annotations`]: ground-truth objects from instance masks (`--objects annotations`);
+//! - [`baseline`], [`orb_bow`]: the ORB bag-of-words baseline ORB-SLAM3 uses;
 //! - [`dataset`]: data set folders and where their ground truth comes from;
 //! - [`truth`]: ground truth files, pose files and the paper's pose rule;
 //! - [`metrics`]: Recall@K, MRR, query selection and latency statistics;
@@ -11,9 +12,11 @@
 //! - [`run`]: the run itself, its table, JSON and report.
 
 pub mod annotations;
+pub mod baseline;
 pub mod dataset;
 pub mod degrade;
 pub mod metrics;
+pub mod orb_bow;
 pub mod plots;
 pub mod remote;
 pub mod run;

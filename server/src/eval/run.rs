@@ -74,6 +74,9 @@ pub struct EvalArgs {
     /// and text layers without a detector's errors.
     #[arg(long, value_enum, default_value_t = ObjectSource::Models)]
     pub objects: ObjectSource,
+    /// Leave out the ORB bag-of-words baseline.
+    #[arg(long)]
+    pub no_baseline: bool,
 }
 
 /// Source of the objects of each image.
@@ -418,6 +421,12 @@ pub async fn run(config: Config, args: EvalArgs) -> anyhow::Result<()> {
         }
     };
 
+    let baseline = if args.no_baseline {
+        None
+    } else {
+        Some(super::baseline::OrbBaseline::build(&dataset)?)
+    };
+
     let mut conditions = vec![None];
     conditions.extend(args.degrade.iter().map(Some));
     let mut report = EvalReport {
@@ -453,11 +462,16 @@ pub async fn run(config: Config, args: EvalArgs) -> anyhow::Result<()> {
                     .await?
             }
         };
-        let results = methods
+        let mut results: Vec<MethodResult> = methods
             .iter()
             .zip(samples)
             .map(|(&(method, _), s)| s.summarise(method))
             .collect();
+        if let Some(baseline) = &baseline {
+            let samples =
+                baseline.condition(&dataset, degradation, &selected, &timed, config.vpr.top_k)?;
+            results.push(samples.summarise(super::baseline::METHOD));
+        }
         report
             .conditions
             .push(ConditionResult { condition, results });
