@@ -1,16 +1,18 @@
 #!/usr/bin/env python3
-"""One Markdown table from the JSON files of several `humem eval` runs.
+"""One Markdown table from the JSON files of several `humem eval` runs
+(optionally only some methods: --methods SCAL,Full,ORB-BoW).
 
 Used by scripts/eval-all.sh to make the README's results section; standard
 library only, so it runs with any Python 3.
 """
 
 import json
+import os
 import sys
 
 
-def rows(report):
-    name = report["dataset"]
+def rows(report, name):
+    name = name.removesuffix("-annotated")
     if report.get("objects") == "annotations":
         name += " (ground-truth objects)"
     for condition in report["conditions"]:
@@ -23,17 +25,25 @@ def rows(report):
             )
 
 
-def main(paths):
+def main(paths, methods=None):
     print("| data set | condition | method | R@1 | R@5 | MRR | mean ms | median ms | p95 ms |")
     print("| --- | --- | --- | --- | --- | --- | --- | --- | --- |")
     for path in paths:
         with open(path) as f:
             report = json.load(f)
-        for row in rows(report):
-            print(row)
+        # The run's name (the JSON file's), e.g. town-dev-dense_fog.
+        name = os.path.basename(path).removesuffix(".json")
+        for row in rows(report, name):
+            if methods is None or row.split(" | ")[2] in methods:
+                print(row)
 
 
 if __name__ == "__main__":
-    if len(sys.argv) < 2:
-        sys.exit("usage: eval_table.py RUN.json...")
-    main(sys.argv[1:])
+    args = sys.argv[1:]
+    methods = None
+    if args[:1] == ["--methods"]:
+        methods = set(args[1].split(","))
+        args = args[2:]
+    if not args:
+        sys.exit("usage: eval_table.py [--methods SCAL,Full,...] RUN.json...")
+    main(args, methods)
