@@ -1,0 +1,780 @@
+// Job: the HuMem ORB-SLAM3 plugin (see VprKeyFrameDatabase.h): settings,
+// factory registration, keyframe/frame hooks, loop/merge and relocalisation
+// candidates from HuMem, and the store's maintenance (erase, resets, poses).
+#include "VprKeyFrameDatabase.h"
+
+#include <unistd.h>
+
+#include <algorithm>
+#include <atomic>
+#include <ctime>
+#include <iomanip>
+#include <iostream>
+#include <set>
+#include <sstream>
+
+#include <opencv2/core/core.hpp>
+#include <opencv2/imgproc/imgproc.hpp>
+
+#include "Frame.h"
+#include "KeyFrame.h"
+#include "Map.h"
+
+namespace ORB_SLAM3
+{
+
+namespace
+{
+
+// Registers the factory when libORB_SLAM3 is loaded (this file is compiled
+// into it, so the object is always linked).
+struct RegisterFactory
+{
+    RegisterFactory() { KeyFrameDatabase::SetFactory(&VprKeyFrameDatabase::Create); }
+} gRegisterFactory;
+
+std::atomic<uint64_t> gWriteFailures(0);
+
+bool ReadString(const cv::FileStorage &fs, const char* key, std::string* out)
+{
+    cv::FileNode node = fs[key];
+    if(node.empty())
+        return false;
+    if(node.isString())
+        *out = node.string();
+    else if(node.isInt())
+        *out = std::to_string(static_cast<int>(node));
+    else
+        return false;
+    return true;
+}
+
+template <typename T>
+bool ReadNumber(const cv::FileStorage &fs, const char* key, T* out)
+{
+    cv::FileNode node = fs[key];
+    if(node.empty())
+        return false;
+    if(node.isInt())
+        *out = static_cast<T>(static_cast<int>(node));
+    else if(node.isReal())
+        *out = static_cast<T>(static_cast<double>(node));
+    else
+        return false;
+    return true;
+}
+
+bool ReadBool(const cv::FileStorage &fs, const char* key, bool* out)
+{
+    int v = 0;
+    if(!ReadNumber(fs, key, &v))
+        return false;
+    *out = v != 0;
+    return true;
+}
+
+std::string DefaultSessionId()
+{
+    char buf[32];
+    time_t now = time(0);
+    struct tm t;
+    gmtime_r(&now, &t);
+    strftime(buf, sizeof(buf), "%Y%m%dT%H%M%SZ", &t);
+    std::ostringstream s;
+    s << buf << "-" << getpid();
+    return s.str();
+}
+
+humem::Pose PoseOf(KeyFrame* pKF)
+{
+    // T_wc (camera to world) as HuMem's Pose wants it: camera centre + orientation in the map.
+    Eigen::Matrix4f Twc = pKF->GetPoseInverse().matrix();
+    return humem::Pose::FromMatrixColumnMajor(Twc.data());
+}
+
+double MsSince(std::chrono::steady_clock::time_point t0)
+{
+    return std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - t0).count();
+}
+
+} // namespace
+
+// ---------------------------------------------------------------------------
+// Settings
+
+HuMemSettings::HuMemSettings()
+    : enabled(true), robotId("orbslam3"), resetSessionOnStart(false), queryDeadlineMs(500),
+      queryTimeoutMs(5000), imageCacheFrames(64), topN(0), threshold(-1.f), relocThreshold(-1.f),
+      minFrameGap(-1), relocMinFrameGap(0), relocMaxAgeFrames(30), minMapKeyFrames(12),
+      dbow2Fallback(false), poseUpdates(true), verbose(1)
+{
+}
+
+bool HuMemSettings::Load(const std::string &strSettingsFile)
+{
+    cv::FileStorage fs(strSettingsFile.c_str(), cv::FileStorage::READ);
+    if(!fs.isOpened())
+        return false;
+    ReadBool(fs, "HuMem.Enabled", &enabled);
+    ReadString(fs, "HuMem.Address", &address);
+    ReadString(fs, "HuMem.RobotId", &robotId);
+    ReadString(fs, "HuMem.SessionId", &sessionId);
+    ReadBool(fs, "HuMem.ResetSessionOnStart", &resetSessionOnStart);
+    ReadNumber(fs, "HuMem.QueryDeadlineMs", &queryDeadlineMs);
+    ReadNumber(fs, "HuMem.QueryTimeoutMs", &queryTimeoutMs);
+    ReadNumber(fs, "HuMem.ImageCacheFrames", &imageCacheFrames);
+    ReadNumber(fs, "HuMem.TopN", &topN);
+    ReadNumber(fs, "HuMem.Threshold", &threshold);
+    ReadNumber(fs, "HuMem.RelocThreshold", &relocThreshold);
+    ReadNumber(fs, "HuMem.MinFrameGap", &minFrameGap);
+    ReadNumber(fs, "HuMem.RelocMinFrameGap", &relocMinFrameGap);
+    ReadNumber(fs, "HuMem.RelocMaxAgeFrames", &relocMaxAgeFrames);
+    ReadString(fs, "HuMem.Layers", &layers);
+    ReadNumber(fs, "HuMem.MinMapKeyFrames", &minMapKeyFrames);
+    ReadBool(fs, "HuMem.DBoW2Fallback", &dbow2Fallback);
+    ReadBool(fs, "HuMem.PoseUpdates", &poseUpdates);
+    ReadNumber(fs, "HuMem.Verbose", &verbose);
+    if(imageCacheFrames < 1)
+        imageCacheFrames = 1;
+    if(queryDeadlineMs < 0)
+        queryDeadlineMs = 0;
+    return true;
+}
+
+// ---------------------------------------------------------------------------
+// Factory
+
+KeyFrameDatabase* VprKeyFrameDatabase::Create(const ORBVocabulary &voc, const std::string &strSettingsFile)
+{
+    HuMemSettings s;
+    if(!s.Load(strSettingsFile) || !s.enabled || s.address.empty())
+    {
+        std::cout << "[HuMem] place recognition: DBoW2 (HuMem "
+                  << (s.enabled ? "not configured: no HuMem.Address" : "disabled: HuMem.Enabled is 0")
+                  << ")" << std::endl;
+        return new KeyFrameDatabase(voc);
+    }
+    if(s.sessionId.empty())
+        s.sessionId = DefaultSessionId();
+
+    humem::ClientOptions options;
+    options.target = s.address;
+    options.robot_id = s.robotId;
+    options.session_id = s.sessionId;
+    options.query_timeout = std::chrono::milliseconds(s.queryTimeoutMs);
+    options.on_write_failed = [](const humem::WriteFailure &f) {
+        ++gWriteFailures;
+        std::ostringstream m;
+        m << "[HuMem] warning: write #" << f.sequence << " (kind " << static_cast<int>(f.kind)
+          << ", keyframe " << f.keyframe_id << ") failed: " << f.status.ToString() << "\n";
+        std::cout << m.str() << std::flush;
+    };
+    humem::Status status;
+    std::unique_ptr<humem::VprClient> client = humem::VprClient::Create(options, &status);
+    if(!client)
+    {
+        std::cout << "[HuMem] error: cannot create the client (" << status.ToString()
+                  << "); place recognition falls back to DBoW2" << std::endl;
+        return new KeyFrameDatabase(voc);
+    }
+    return new VprKeyFrameDatabase(voc, s, std::move(client));
+}
+
+VprKeyFrameDatabase::Counters::Counters()
+    : framesCached(0), keyframesSeen(0), inserts(0), insertsNoImage(0), insertsRefused(0), erases(0),
+      mapResets(0), sessionResets(0), poseUpdates(0), loopQueries(0), loopAnswered(0),
+      loopNotAnswered(0), loopCandidates(0), loopUsed(0), mergeUsed(0), relocQueries(0),
+      relocAnswersUsed(0), relocCandidates(0), writeFailures(0)
+{
+}
+
+VprKeyFrameDatabase::VprKeyFrameDatabase(const ORBVocabulary &voc, const HuMemSettings &settings,
+                                         std::unique_ptr<humem::VprClient> client)
+    : KeyFrameDatabase(voc), mSettings(settings), mClient(std::move(client)),
+      mImages(static_cast<size_t>(settings.imageCacheFrames)), mSessionId(settings.sessionId),
+      mSessionResets(0), mHaveReloc(false), mRelocFrameId(0), mRefusedInRow(0), mFailedQueriesInRow(0)
+{
+    std::ostringstream m;
+    m << "place recognition: HuMem at " << mSettings.address << ", robot '" << mSettings.robotId
+      << "', session '" << mSessionId << "', loop deadline " << mSettings.queryDeadlineMs
+      << " ms, image cache " << mSettings.imageCacheFrames << " frames, DBoW2 fallback "
+      << (mSettings.dbow2Fallback ? "on" : "off");
+    Log(1, m.str());
+    if(mSettings.resetSessionOnStart)
+        mClient->ResetSession();
+}
+
+VprKeyFrameDatabase::~VprKeyFrameDatabase()
+{
+    // ORB-SLAM3 never deletes its database; if someone does, let queued writes drain.
+    mClient->Close(std::chrono::milliseconds(2000));
+}
+
+VprKeyFrameDatabase::Counters VprKeyFrameDatabase::GetCounters()
+{
+    std::lock_guard<std::mutex> lock(mMutexHm);
+    Counters c = mCounters;
+    c.writeFailures = gWriteFailures.load();
+    return c;
+}
+
+void VprKeyFrameDatabase::Log(int level, const std::string &message)
+{
+    if(level > mSettings.verbose)
+        return;
+    std::lock_guard<std::mutex> lock(mMutexLog);
+    std::cout << (level == 0 ? "[HuMem] warning: " : "[HuMem] ") << message << std::endl;
+}
+
+std::string VprKeyFrameDatabase::DescribeCandidate(const humem::Candidate &c) const
+{
+    std::ostringstream s;
+    s << "KF " << c.keyframe_id << " (frame " << c.frame_id << ", map " << c.map_id << ", score "
+      << std::fixed << std::setprecision(3) << c.score << ")";
+    return s.str();
+}
+
+void VprKeyFrameDatabase::ApplyQueryOptions(humem::QueryRequest &q, bool reloc) const
+{
+    q.scope = humem::Scope::kAllMaps;  // loop vs merge is decided here, by each keyframe's current map
+    if(mSettings.topN > 0)
+        q.top_n = static_cast<uint32_t>(mSettings.topN);
+    float threshold = reloc && mSettings.relocThreshold >= 0.f ? mSettings.relocThreshold : mSettings.threshold;
+    if(threshold >= 0.f)
+        q.threshold = threshold;
+    if(reloc)
+        q.min_frame_gap = static_cast<uint64_t>(std::max(0, mSettings.relocMinFrameGap));
+    else if(mSettings.minFrameGap >= 0)
+        q.min_frame_gap = static_cast<uint64_t>(mSettings.minFrameGap);
+    const std::string &l = mSettings.layers;
+    if(l == "scal" || l == "SCAL")
+        q.layers = humem::Layers::kScal;
+    else if(l == "scal_osrl" || l == "SCAL_OSRL")
+        q.layers = humem::Layers::kScalOsrl;
+    else if(l == "scal_ogtl" || l == "SCAL_OGTL")
+        q.layers = humem::Layers::kScalOgtl;
+    else if(l == "full" || l == "FULL")
+        q.layers = humem::Layers::kFull;
+}
+
+// ---------------------------------------------------------------------------
+// Tracking hooks
+
+void VprKeyFrameDatabase::NewFrame(const cv::Mat &imGray, const Frame &F)
+{
+    if(imGray.empty())
+        return;
+    cv::Mat gray = imGray;
+    if(gray.type() != CV_8UC1)
+    {
+        cv::Mat tmp;
+        if(gray.channels() == 3)
+            cv::cvtColor(gray, tmp, cv::COLOR_BGR2GRAY);
+        else if(gray.channels() == 4)
+            cv::cvtColor(gray, tmp, cv::COLOR_BGRA2GRAY);
+        else
+            tmp = gray;
+        if(tmp.depth() != CV_8U)
+            tmp.convertTo(tmp, CV_8U);
+        gray = tmp;
+    }
+    std::shared_ptr<const humem::Image> image = std::make_shared<humem::Image>(
+        humem::Image::Raw(humem::Image::kGray8, gray.data, static_cast<uint32_t>(gray.cols),
+                          static_cast<uint32_t>(gray.rows), gray.step));
+    mImages.Put(F.mnId, image);
+    std::lock_guard<std::mutex> lock(mMutexHm);
+    ++mCounters.framesCached;
+}
+
+bool VprKeyFrameDatabase::InsertLocked(KeyFrame* pKF, Entry &entry, std::shared_ptr<const humem::Image> *image)
+{
+    entry.triedInsert = true;
+    Map* pMap = pKF->GetMap();
+    if(!pMap || pKF->isBad())
+        return false;
+    std::shared_ptr<const humem::Image> img;
+    if(!mImages.Get(pKF->mnFrameId, &img))
+    {
+        ++mCounters.insertsNoImage;
+        std::ostringstream m;
+        m << "no cached image of frame " << pKF->mnFrameId << " for KF " << pKF->mnId
+          << ": not sent (raise HuMem.ImageCacheFrames)";
+        Log(0, m.str());
+        return false;
+    }
+    humem::Keyframe k;
+    k.keyframe_id = pKF->mnId;
+    k.frame_id = pKF->mnFrameId;
+    k.map_id = pMap->GetId();
+    k.timestamp = pKF->mTimeStamp;
+    k.pose = PoseOf(pKF);
+    k.image = img;
+    humem::WriteResult w = mClient->Insert(k);
+    if(w.state == humem::WriteState::kFailed)
+    {
+        ++mCounters.insertsRefused;
+        ++mRefusedInRow;
+        if(mRefusedInRow == 1 || mRefusedInRow % 50 == 0)
+            Log(0, "insert of KF " + std::to_string(pKF->mnId) + " refused (" + std::to_string(mRefusedInRow) +
+                       " in a row; the keyframe will be missing in HuMem): " + w.status.ToString());
+        return false;
+    }
+    mRefusedInRow = 0;
+    entry.inserted = true;
+    entry.serverMapId = k.map_id;
+    entry.map = pMap;
+    ++mCounters.inserts;
+    if(image)
+        *image = img;
+    return true;
+}
+
+void VprKeyFrameDatabase::NewKeyFrame(KeyFrame* pKF)
+{
+    if(!pKF)
+        return;
+    Map* pMap = pKF->GetMap();
+    if(!pMap)
+        return;
+    const unsigned long mapId = pMap->GetId();
+    // (The keyframe joins the map in Local Mapping, hence the + 1.)
+    const bool askLoop = static_cast<int>(pMap->KeyFramesInMap()) + 1 >= mSettings.minMapKeyFrames;
+
+    std::lock_guard<std::mutex> lock(mMutexHm);
+    ++mCounters.keyframesSeen;
+    Entry &entry = mEntries[pKF->mnId];
+    entry = Entry();
+    entry.kf = pKF;
+    std::shared_ptr<const humem::Image> image;
+    if(!InsertLocked(pKF, entry, &image))
+        return;
+
+    // Temporal context: the previous keyframes made in the same map, newest first.
+    std::vector<uint64_t> predecessors;
+    for(size_t i = 0; i < mRecentKFs.size() && predecessors.size() < 2; ++i)
+        if(mRecentKFs[i].second == mapId && mRecentKFs[i].first != pKF->mnId)
+            predecessors.push_back(mRecentKFs[i].first);
+    mRecentKFs.push_front(std::make_pair(pKF->mnId, mapId));
+    if(mRecentKFs.size() > 8)
+        mRecentKFs.pop_back();
+
+    std::ostringstream m;
+    m << "insert KF " << pKF->mnId << " (frame " << pKF->mnFrameId << ", map " << mapId << ")";
+    // The loop query goes with the image: the insert may not be stored yet when it runs.
+    if(askLoop && pKF->mnId != 0)
+    {
+        humem::QueryRequest q;
+        q.kind = humem::QueryKind::kLoopClosure;
+        q.keyframe_id = static_cast<uint64_t>(pKF->mnId);
+        q.frame_id = static_cast<uint64_t>(pKF->mnFrameId);
+        q.map_id = static_cast<uint64_t>(mapId);
+        q.image = image;
+        q.predecessor_keyframe_ids = predecessors;
+        ApplyQueryOptions(q, false);
+        entry.loopTicket = mClient->SubmitQuery(q);
+        ++mCounters.loopQueries;
+        m << " + loop query (ticket " << entry.loopTicket << ")";
+    }
+    Log(2, m.str());
+}
+
+void VprKeyFrameDatabase::SubmitRelocalisation(const Frame &F, Map* pMap)
+{
+    std::shared_ptr<const humem::Image> image;
+    if(!mImages.Get(F.mnId, &image))
+        return;
+    humem::QueryRequest q;
+    q.kind = humem::QueryKind::kRelocalisation;
+    q.frame_id = static_cast<uint64_t>(F.mnId);
+    if(pMap)
+        q.map_id = static_cast<uint64_t>(pMap->GetId());
+    q.image = image;
+    ApplyQueryOptions(q, true);
+    humem::Ticket t = mClient->SubmitQuery(q);
+    std::lock_guard<std::mutex> lock(mMutexHm);
+    ++mCounters.relocQueries;
+    mRelocTickets[t] = F.mnId;
+    while(mRelocTickets.size() > 64)
+        mRelocTickets.erase(mRelocTickets.begin());
+}
+
+void VprKeyFrameDatabase::TrackingRecentlyLost(Frame* F, Map* pMap)
+{
+    if(!F)
+        return;
+    {
+        std::lock_guard<std::mutex> lock(mMutexHm);
+        mHaveReloc = false;
+    }
+    Log(1, "tracking lost at frame " + std::to_string(F->mnId) + ": relocalisation query submitted");
+    SubmitRelocalisation(*F, pMap);
+}
+
+// ---------------------------------------------------------------------------
+// Database maintenance
+
+void VprKeyFrameDatabase::add(KeyFrame* pKF)
+{
+    KeyFrameDatabase::add(pKF);  // the DBoW2 inverted file, as before
+    if(!pKF)
+        return;
+    bool force = false;
+    {
+        std::lock_guard<std::mutex> lock(mMutexHm);
+        Entry &entry = mEntries[pKF->mnId];
+        if(entry.kf != pKF)
+        {
+            // Not seen by NewKeyFrame (e.g. loaded with an atlas): register it,
+            // and send it if its image is still cached.
+            entry = Entry();
+            entry.kf = pKF;
+        }
+        if(!entry.inserted && !entry.triedInsert)
+            InsertLocked(pKF, entry, 0);
+        Map* pMap = pKF->GetMap();
+        if(entry.inserted && pMap && (entry.map != pMap || entry.serverMapId != pMap->GetId()))
+            force = true;  // moved by a map merge
+    }
+    MaybeUpdatePoses(pKF->GetMap(), force);
+}
+
+void VprKeyFrameDatabase::MaybeUpdatePoses(Map* pMap, bool force)
+{
+    if(!mSettings.poseUpdates || !pMap || pMap->IsBad())
+        return;
+    const unsigned long mapId = pMap->GetId();
+    const int bigChange = pMap->GetLastBigChangeIdx();
+    {
+        std::lock_guard<std::mutex> lock(mMutexHm);
+        int &seen = mMapBigChange[pMap];
+        if(!force && seen == bigChange)
+            return;
+        seen = bigChange;
+    }
+    std::vector<KeyFrame*> vpKFs = pMap->GetAllKeyFrames();
+    std::vector<humem::PoseUpdate> updates;
+    updates.reserve(vpKFs.size());
+    size_t moved = 0;
+    std::lock_guard<std::mutex> lock(mMutexHm);
+    for(size_t i = 0; i < vpKFs.size(); ++i)
+    {
+        KeyFrame* pKFi = vpKFs[i];
+        if(!pKFi || pKFi->isBad())
+            continue;
+        std::unordered_map<unsigned long, Entry>::iterator it = mEntries.find(pKFi->mnId);
+        if(it == mEntries.end() || it->second.kf != pKFi || !it->second.inserted)
+            continue;
+        humem::PoseUpdate u;
+        u.keyframe_id = pKFi->mnId;
+        u.pose = PoseOf(pKFi);
+        if(it->second.serverMapId != mapId)
+        {
+            u.map_id = static_cast<uint64_t>(mapId);
+            it->second.serverMapId = mapId;
+            ++moved;
+        }
+        it->second.map = pMap;
+        updates.push_back(u);
+    }
+    if(updates.empty())
+        return;
+    mClient->UpdatePoses(updates);
+    ++mCounters.poseUpdates;
+    std::ostringstream m;
+    m << "pose update: " << updates.size() << " keyframes of map " << mapId << " (" << moved
+      << " moved to it by a merge) after loop closure / merge / global BA";
+    Log(1, m.str());
+}
+
+void VprKeyFrameDatabase::erase(KeyFrame* pKF)
+{
+    KeyFrameDatabase::erase(pKF);
+    if(!pKF)
+        return;
+    std::lock_guard<std::mutex> lock(mMutexHm);
+    std::unordered_map<unsigned long, Entry>::iterator it = mEntries.find(pKF->mnId);
+    if(it == mEntries.end() || it->second.kf != pKF)
+        return;
+    if(it->second.inserted)
+    {
+        mClient->Erase(std::vector<uint64_t>(1, static_cast<uint64_t>(pKF->mnId)));
+        ++mCounters.erases;
+        Log(2, "erase KF " + std::to_string(pKF->mnId));
+    }
+    mEntries.erase(it);
+}
+
+void VprKeyFrameDatabase::clearMap(Map* pMap)
+{
+    KeyFrameDatabase::clearMap(pMap);
+    if(!pMap)
+        return;
+    const unsigned long mapId = pMap->GetId();
+    std::lock_guard<std::mutex> lock(mMutexHm);
+    std::vector<uint64_t> elsewhere;  // keyframes of this map that HuMem holds under another map id
+    size_t n = 0;
+    for(std::unordered_map<unsigned long, Entry>::iterator it = mEntries.begin(); it != mEntries.end();)
+    {
+        if(it->second.kf && it->second.kf->GetMap() == pMap)
+        {
+            if(it->second.inserted && it->second.serverMapId != mapId)
+                elsewhere.push_back(it->first);
+            ++n;
+            it = mEntries.erase(it);
+        }
+        else
+            ++it;
+    }
+    mClient->ResetMap(mapId);
+    if(!elsewhere.empty())
+        mClient->Erase(elsewhere);
+    mMapBigChange.erase(pMap);
+    ++mCounters.mapResets;
+    Log(1, "map " + std::to_string(mapId) + " reset: ResetMap sent (" + std::to_string(n) + " keyframes forgotten)");
+}
+
+void VprKeyFrameDatabase::clear()
+{
+    KeyFrameDatabase::clear();
+    std::lock_guard<std::mutex> lock(mMutexHm);
+    // Full reset: ORB-SLAM3 restarts keyframe and frame ids. Empty this
+    // session on the server, then continue in a new one so that answers still
+    // on their way (about the old ids) can never be mistaken for new keyframes.
+    mClient->ResetSession();
+    ++mSessionResets;
+    mSessionId = mSettings.sessionId + "-reset" + std::to_string(mSessionResets);
+    mClient->SetSession(mSessionId);
+    mEntries.clear();
+    mRecentKFs.clear();
+    mMapBigChange.clear();
+    mRelocTickets.clear();
+    mHaveReloc = false;
+    mImages.Clear();
+    ++mCounters.sessionResets;
+    Log(1, "full reset: ResetSession sent, new session '" + mSessionId + "'");
+}
+
+// ---------------------------------------------------------------------------
+// Candidates
+
+void VprKeyFrameDatabase::DetectNBestCandidates(KeyFrame *pKF, std::vector<KeyFrame*> &vpLoopCand,
+                                                std::vector<KeyFrame*> &vpMergeCand, int nNumCandidates)
+{
+    if(!pKF)
+        return;
+    Map* pMap = pKF->GetMap();
+    humem::Ticket ticket = 0;
+    bool inserted = false;
+    {
+        std::lock_guard<std::mutex> lock(mMutexHm);
+        std::unordered_map<unsigned long, Entry>::iterator it = mEntries.find(pKF->mnId);
+        if(it != mEntries.end() && it->second.kf == pKF)
+        {
+            ticket = it->second.loopTicket;
+            inserted = it->second.inserted;
+        }
+    }
+    if(ticket == 0 && inserted && pMap)
+    {
+        // No query was made with the keyframe (its map was small then): ask
+        // now, with its image if still cached (the insert may still be
+        // queued), else with the stored keyframe's features.
+        humem::QueryRequest q;
+        q.kind = humem::QueryKind::kLoopClosure;
+        q.keyframe_id = static_cast<uint64_t>(pKF->mnId);
+        q.frame_id = static_cast<uint64_t>(pKF->mnFrameId);
+        q.map_id = static_cast<uint64_t>(pMap->GetId());
+        mImages.Get(pKF->mnFrameId, &q.image);
+        ApplyQueryOptions(q, false);
+        ticket = mClient->SubmitQuery(q);
+        std::lock_guard<std::mutex> lock(mMutexHm);
+        ++mCounters.loopQueries;
+    }
+    if(ticket == 0)
+    {
+        if(mSettings.dbow2Fallback)
+            KeyFrameDatabase::DetectNBestCandidates(pKF, vpLoopCand, vpMergeCand, nNumCandidates);
+        return;
+    }
+
+    const std::chrono::steady_clock::time_point t0 = std::chrono::steady_clock::now();
+    humem::QueryResult r = mClient->WaitFor(ticket, std::chrono::milliseconds(mSettings.queryDeadlineMs));
+    const double waited = MsSince(t0);
+    uint64_t failedInRow = 0;
+    {
+        std::lock_guard<std::mutex> lock(mMutexHm);
+        if(r.state == humem::QueryState::kAnswered)
+        {
+            ++mCounters.loopAnswered;
+            mCounters.loopCandidates += r.candidates.size();
+        }
+        else
+            ++mCounters.loopNotAnswered;
+        mFailedQueriesInRow = r.state == humem::QueryState::kFailed ? mFailedQueriesInRow + 1 : 0;
+        failedInRow = mFailedQueriesInRow;
+        std::unordered_map<unsigned long, Entry>::iterator it = mEntries.find(pKF->mnId);
+        if(it != mEntries.end() && it->second.kf == pKF)
+            it->second.loopTicket = 0;
+    }
+    if(r.state != humem::QueryState::kAnswered)
+    {
+        std::ostringstream m;
+        m << "loop query KF " << pKF->mnId << ": " << humem::QueryStateName(r.state);
+        if(!r.status.ok())
+            m << " (" << r.status.ToString() << ")";
+        m << " after waiting " << std::fixed << std::setprecision(0) << waited << " ms: no candidates"
+          << (mSettings.dbow2Fallback ? ", DBoW2 fallback" : "");
+        if(failedInRow > 1)
+            m << " (" << failedInRow << " failed in a row)";
+        const bool warn = failedInRow == 1 || (failedInRow > 0 && failedInRow % 50 == 0);
+        Log(warn ? 0 : 2, m.str());
+        if(mSettings.dbow2Fallback)
+            KeyFrameDatabase::DetectNBestCandidates(pKF, vpLoopCand, vpMergeCand, nNumCandidates);
+        return;
+    }
+
+    std::set<KeyFrame*> spConnected = pKF->GetConnectedKeyFrames();
+    std::set<KeyFrame*> spAdded;
+    const std::string session = mClient->session_id();
+    std::ostringstream m;
+    m << "loop query KF " << pKF->mnId << " (frame " << pKF->mnFrameId << ", map "
+      << (pMap ? static_cast<long>(pMap->GetId()) : -1L) << "): " << r.candidates.size()
+      << " candidates of " << r.eligible_keyframes << " eligible, round trip " << std::fixed
+      << std::setprecision(0) << r.round_trip_seconds * 1000.0 << " ms, waited " << waited << " ms";
+    for(size_t i = 0; i < r.candidates.size(); ++i)
+    {
+        const humem::Candidate &c = r.candidates[i];
+        m << "\n[HuMem]    " << DescribeCandidate(c) << " -> ";
+        if(c.robot_id != mClient->robot_id() || c.session_id != session)
+        {
+            m << "skipped: robot '" << c.robot_id << "' session '" << c.session_id << "'";
+            continue;
+        }
+        KeyFrame* pKFi = 0;
+        {
+            std::lock_guard<std::mutex> lock(mMutexHm);
+            std::unordered_map<unsigned long, Entry>::iterator it = mEntries.find(c.keyframe_id);
+            if(it != mEntries.end())
+                pKFi = it->second.kf;
+        }
+        if(!pKFi) { m << "skipped: unknown keyframe"; continue; }
+        if(pKFi == pKF) { m << "skipped: itself"; continue; }
+        if(pKFi->isBad()) { m << "skipped: bad"; continue; }
+        Map* pMapi = pKFi->GetMap();
+        if(!pMapi || pMapi->IsBad()) { m << "skipped: no map"; continue; }
+        if(spConnected.count(pKFi)) { m << "skipped: covisible"; continue; }
+        if(spAdded.count(pKFi)) { m << "skipped: duplicate"; continue; }
+        if(pMapi == pMap)
+        {
+            if(static_cast<int>(vpLoopCand.size()) >= nNumCandidates) { m << "skipped: enough loop candidates"; continue; }
+            vpLoopCand.push_back(pKFi);
+            m << "LOOP candidate";
+        }
+        else
+        {
+            if(static_cast<int>(vpMergeCand.size()) >= nNumCandidates) { m << "skipped: enough merge candidates"; continue; }
+            vpMergeCand.push_back(pKFi);
+            m << "MERGE candidate (KF now in map " << pMapi->GetId() << ")";
+        }
+        spAdded.insert(pKFi);
+    }
+    bool logCounters = false;
+    {
+        std::lock_guard<std::mutex> lock(mMutexHm);
+        mCounters.loopUsed += vpLoopCand.size();
+        mCounters.mergeUsed += vpMergeCand.size();
+        logCounters = mCounters.loopAnswered % 25 == 0;
+    }
+    Log(r.candidates.empty() ? 2 : 1, m.str());
+    if(logCounters)
+        LogCounters();
+}
+
+void VprKeyFrameDatabase::LogCounters()
+{
+    Counters c = GetCounters();
+    std::ostringstream m;
+    m << "stats: frames cached " << c.framesCached << ", keyframes " << c.keyframesSeen << ", inserts "
+      << c.inserts << " (no image " << c.insertsNoImage << ", refused " << c.insertsRefused << "), erases "
+      << c.erases << ", map resets " << c.mapResets << ", session resets " << c.sessionResets
+      << ", pose updates " << c.poseUpdates << ", loop queries " << c.loopQueries << " (answered "
+      << c.loopAnswered << ", not answered " << c.loopNotAnswered << ", candidates " << c.loopCandidates
+      << ", used: loop " << c.loopUsed << " merge " << c.mergeUsed << "), reloc queries " << c.relocQueries
+      << " (answers used " << c.relocAnswersUsed << ", candidates " << c.relocCandidates
+      << "), write failures " << c.writeFailures;
+    Log(1, m.str());
+}
+
+std::vector<KeyFrame*> VprKeyFrameDatabase::DetectRelocalizationCandidates(Frame* F, Map* pMap)
+{
+    std::vector<KeyFrame*> out;
+    if(!F)
+        return out;
+    // Ask about this frame (latest wins: while one query is in flight, only
+    // the newest waits), and use the newest answer there is. Never blocks.
+    SubmitRelocalisation(*F, pMap);
+
+    humem::QueryResult r;
+    bool fresh = false;
+    while(mClient->Latest(humem::QueryKind::kRelocalisation, &r))
+    {
+        std::lock_guard<std::mutex> lock(mMutexHm);
+        std::map<humem::Ticket, unsigned long>::iterator it = mRelocTickets.find(r.ticket);
+        if(it == mRelocTickets.end())
+            continue;  // from before a reset
+        mRelocFrameId = it->second;
+        mReloc = r;
+        mHaveReloc = true;
+        fresh = true;
+    }
+
+    humem::QueryResult answer;
+    unsigned long answerFrame = 0;
+    {
+        std::lock_guard<std::mutex> lock(mMutexHm);
+        if(mHaveReloc && F->mnId >= mRelocFrameId &&
+           F->mnId - mRelocFrameId <= static_cast<unsigned long>(std::max(0, mSettings.relocMaxAgeFrames)))
+        {
+            answer = mReloc;
+            answerFrame = mRelocFrameId;
+        }
+    }
+    if(answer.state == humem::QueryState::kAnswered)
+    {
+        const std::string session = mClient->session_id();
+        std::ostringstream m;
+        m << "relocalisation frame " << F->mnId << ": answer for frame " << answerFrame << ", "
+          << answer.candidates.size() << " candidates";
+        for(size_t i = 0; i < answer.candidates.size(); ++i)
+        {
+            const humem::Candidate &c = answer.candidates[i];
+            if(c.robot_id != mClient->robot_id() || c.session_id != session)
+                continue;
+            KeyFrame* pKFi = 0;
+            {
+                std::lock_guard<std::mutex> lock(mMutexHm);
+                std::unordered_map<unsigned long, Entry>::iterator it = mEntries.find(c.keyframe_id);
+                if(it != mEntries.end())
+                    pKFi = it->second.kf;
+            }
+            m << "\n[HuMem]    " << DescribeCandidate(c) << " -> ";
+            if(!pKFi || pKFi->isBad()) { m << "skipped: not live"; continue; }
+            if(pKFi->GetMap() != pMap) { m << "skipped: not in the current map"; continue; }
+            if(std::find(out.begin(), out.end(), pKFi) != out.end()) { m << "skipped: duplicate"; continue; }
+            out.push_back(pKFi);
+            m << "candidate";
+        }
+        if(fresh)
+        {
+            std::lock_guard<std::mutex> lock(mMutexHm);
+            ++mCounters.relocAnswersUsed;
+            mCounters.relocCandidates += out.size();
+        }
+        Log(fresh ? 1 : 2, m.str());
+    }
+    if(out.empty() && mSettings.dbow2Fallback)
+        return KeyFrameDatabase::DetectRelocalizationCandidates(F, pMap);
+    return out;
+}
+
+} // namespace ORB_SLAM3

@@ -1,0 +1,166 @@
+// Job: ORB-SLAM3's keyframe database backed by a HuMem place-recognition
+// server (the HuMem ORB-SLAM3 plugin).
+//
+// VprKeyFrameDatabase replaces ORB-SLAM3's DBoW2 place recognition with
+// HuMem's. It needs ORB-SLAM3 v1.0 with orbslam3-v1.0.patch applied (virtual
+// KeyFrameDatabase methods, a factory, hooks in Tracking) and is compiled
+// into libORB_SLAM3 (orbslam3-humem.cmake), where it registers its factory:
+// System then asks it for the database, and it reads the `HuMem.*` keys of the
+// settings YAML. Without `HuMem.Address`, or with `HuMem.Enabled: 0`, the
+// factory returns a plain KeyFrameDatabase: ORB-SLAM3 runs exactly as before.
+//
+// What it does, per thread of ORB-SLAM3:
+//   Tracking     NewFrame: puts the grayscale frame in an image ring cache
+//                (keyframes do not keep their image).
+//                NewKeyFrame: sends the keyframe (its frame's image as GRAY8,
+//                T_wc, map id, ids, timestamp) to HuMem and submits its loop
+//                query (with the same image) at once.
+//                TrackingRecentlyLost / DetectRelocalizationCandidates:
+//                submit relocalisation queries for the current frame and use
+//                the newest answer there is; never block.
+//   LoopClosing  DetectNBestCandidates: waits (up to HuMem.QueryDeadlineMs)
+//                for the answer to the query submitted when the keyframe was
+//                made, resolves the ids to live keyframes, drops the query's
+//                covisible keyframes and splits loop (same map) and merge
+//                (other map) candidates by each keyframe's current map.
+//                add: also sends corrected poses after loop closure, global
+//                BA or a merge.
+//   any          erase (KeyFrame::SetBadFlag) -> Erase; clearMap (active map
+//                reset) -> ResetMap; clear (full reset: ids restart) ->
+//                ResetSession and a new session id.
+// The DBoW2 inverted file is kept as well (add/erase/clear call the base
+// class), so HuMem.DBoW2Fallback can use it when HuMem has no answer.
+//
+// C++11, like ORB-SLAM3 (-std=c++11).
+#ifndef ORB_SLAM3_VPR_KEYFRAME_DATABASE_H
+#define ORB_SLAM3_VPR_KEYFRAME_DATABASE_H
+
+#include <chrono>
+#include <cstdint>
+#include <deque>
+#include <map>
+#include <memory>
+#include <mutex>
+#include <string>
+#include <unordered_map>
+#include <vector>
+
+#include <humem/humem.h>
+
+#include "KeyFrameDatabase.h"
+
+namespace ORB_SLAM3
+{
+
+// The `HuMem.*` keys of ORB-SLAM3's settings YAML (see humem-settings.yaml).
+struct HuMemSettings
+{
+    bool enabled;                 // HuMem.Enabled (default 1; needs Address)
+    std::string address;          // HuMem.Address, "host:port" (empty: disabled)
+    std::string robotId;          // HuMem.RobotId (default "orbslam3")
+    std::string sessionId;        // HuMem.SessionId (default: generated, unique)
+    bool resetSessionOnStart;     // HuMem.ResetSessionOnStart (default 0)
+    int queryDeadlineMs;          // HuMem.QueryDeadlineMs: LoopClosing waits this long (500)
+    int queryTimeoutMs;           // HuMem.QueryTimeoutMs: one query RPC's deadline (5000)
+    int imageCacheFrames;         // HuMem.ImageCacheFrames (64)
+    int topN;                     // HuMem.TopN (0: server default, 5)
+    float threshold;              // HuMem.Threshold (<0: server default, 0.70)
+    float relocThreshold;         // HuMem.RelocThreshold (<0: as Threshold)
+    int minFrameGap;              // HuMem.MinFrameGap for loop queries (<0: server default, 100)
+    int relocMinFrameGap;         // HuMem.RelocMinFrameGap (0: recent keyframes too)
+    int relocMaxAgeFrames;        // HuMem.RelocMaxAgeFrames: oldest answer used (30)
+    std::string layers;           // HuMem.Layers: scal|scal_osrl|scal_ogtl|full ("" = server)
+    int minMapKeyFrames;          // HuMem.MinMapKeyFrames: no loop query below (12, as LoopClosing)
+    bool dbow2Fallback;           // HuMem.DBoW2Fallback: DBoW2 when HuMem has no answer (0)
+    bool poseUpdates;             // HuMem.PoseUpdates: UpdatePoses after loop/GBA/merge (1)
+    int verbose;                  // HuMem.Verbose: 0 warnings, 1 info (default), 2 debug
+
+    HuMemSettings();
+    // Reads the keys from an ORB-SLAM3 settings file; false if it cannot be opened.
+    bool Load(const std::string &strSettingsFile);
+};
+
+class VprKeyFrameDatabase : public KeyFrameDatabase
+{
+public:
+    // The factory registered with KeyFrameDatabase::SetFactory: a
+    // VprKeyFrameDatabase if the settings enable HuMem, else a plain
+    // KeyFrameDatabase.
+    static KeyFrameDatabase* Create(const ORBVocabulary &voc, const std::string &strSettingsFile);
+
+    VprKeyFrameDatabase(const ORBVocabulary &voc, const HuMemSettings &settings,
+                        std::unique_ptr<humem::VprClient> client);
+    ~VprKeyFrameDatabase();
+
+    void add(KeyFrame* pKF) override;
+    void erase(KeyFrame* pKF) override;
+    void clear() override;
+    void clearMap(Map* pMap) override;
+    void DetectNBestCandidates(KeyFrame *pKF, std::vector<KeyFrame*> &vpLoopCand,
+                               std::vector<KeyFrame*> &vpMergeCand, int nNumCandidates) override;
+    std::vector<KeyFrame*> DetectRelocalizationCandidates(Frame* F, Map* pMap) override;
+
+    void NewFrame(const cv::Mat &imGray, const Frame &F) override;
+    void NewKeyFrame(KeyFrame* pKF) override;
+    void TrackingRecentlyLost(Frame* F, Map* pMap) override;
+
+    // Counters since start (for logs and tests).
+    struct Counters
+    {
+        uint64_t framesCached, keyframesSeen, inserts, insertsNoImage, insertsRefused, erases,
+            mapResets, sessionResets, poseUpdates, loopQueries, loopAnswered, loopNotAnswered,
+            loopCandidates, loopUsed, mergeUsed, relocQueries, relocAnswersUsed, relocCandidates,
+            writeFailures;
+        Counters();
+    };
+    Counters GetCounters();
+    // Logs the counters (at info level).
+    void LogCounters();
+    // Waits until the writes queued so far are applied (e.g. before exiting).
+    humem::Status Flush(std::chrono::milliseconds timeout) { return mClient->Flush(timeout); }
+
+private:
+    struct Entry
+    {
+        KeyFrame* kf;
+        bool inserted;          // sent to HuMem (not erased since)
+        bool triedInsert;
+        uint64_t serverMapId;   // map id HuMem holds for it
+        Map* map;               // the Map it was in when last sent (merges move keyframes, and
+                                // Map::ChangeId renames the merged map: compare objects, not ids)
+        humem::Ticket loopTicket;
+        Entry() : kf(0), inserted(false), triedInsert(false), serverMapId(0), map(0), loopTicket(0) {}
+    };
+
+    // Sends pKF (image from the cache); call with mMutex held. False if not sent.
+    bool InsertLocked(KeyFrame* pKF, Entry &entry, std::shared_ptr<const humem::Image> *image);
+    void ApplyQueryOptions(humem::QueryRequest &q, bool reloc) const;
+    void SubmitRelocalisation(const Frame &F, Map* pMap);
+    void MaybeUpdatePoses(Map* pMap, bool force);
+    void Log(int level, const std::string &message);
+    std::string DescribeCandidate(const humem::Candidate &c) const;
+
+    const HuMemSettings mSettings;
+    std::unique_ptr<humem::VprClient> mClient;
+    humem::ImageCache mImages;
+
+    std::mutex mMutexHm;  // everything below
+    std::string mSessionId;
+    unsigned int mSessionResets;
+    std::unordered_map<unsigned long, Entry> mEntries;                 // keyframe id -> entry
+    std::deque<std::pair<unsigned long, unsigned long> > mRecentKFs;   // (kf id, map id), newest first
+    std::map<Map*, int> mMapBigChange;                                 // map -> big change idx seen
+    std::map<humem::Ticket, unsigned long> mRelocTickets;              // ticket -> frame id
+    bool mHaveReloc;
+    humem::QueryResult mReloc;
+    unsigned long mRelocFrameId;
+    Counters mCounters;
+    uint64_t mRefusedInRow;      // inserts refused since the last accepted one (warnings are thinned)
+    uint64_t mFailedQueriesInRow;
+
+    std::mutex mMutexLog;
+};
+
+} // namespace ORB_SLAM3
+
+#endif // ORB_SLAM3_VPR_KEYFRAME_DATABASE_H
