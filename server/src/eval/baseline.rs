@@ -90,7 +90,7 @@ impl OrbBaseline {
         timed: &[usize],
         top_k: usize,
     ) -> anyhow::Result<Samples> {
-        let condition = degradation.map_or_else(|| "clean".to_string(), |d| d.to_string());
+        let condition = super::degrade::condition_name(degradation);
         let fresh;
         let queries: &[Extracted] = match (dataset.kind, degradation) {
             (Kind::Loop, None) => &self.references,

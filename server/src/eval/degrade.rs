@@ -117,6 +117,11 @@ impl fmt::Display for Degradation {
     }
 }
 
+/// The name of a condition in reports: `clean`, or the degradation.
+pub fn condition_name(degradation: Option<&Degradation>) -> String {
+    degradation.map_or_else(|| "clean".to_string(), |d| d.to_string())
+}
+
 /// The sRGB decoding function: encoded value in `[0, 1]` to linear light in
 /// `[0, 1]`. Inputs outside `[0, 1]` are clamped, NaN gives 0.
 pub fn srgb_to_linear(v: f32) -> f32 {

@@ -194,7 +194,7 @@ impl Remote {
         selected: &[usize],
         timed: &[usize],
     ) -> anyhow::Result<Vec<Samples>> {
-        let condition = degradation.map_or_else(|| "clean".to_string(), |d| d.to_string());
+        let condition = super::degrade::condition_name(degradation);
         let (robot, session, gap, frames): (String, String, u64, Vec<usize>) = match dataset.kind {
             Kind::Loop => {
                 if degradation.is_some() {

@@ -299,7 +299,7 @@ impl LocalDatabase {
         selected: &[usize],
         timed: &[usize],
     ) -> anyhow::Result<Vec<Samples>> {
-        let condition = degradation.map_or_else(|| "clean".to_string(), |d| d.to_string());
+        let condition = super::degrade::condition_name(degradation);
         // Query features: for a clean loop, the references themselves.
         let fresh;
         let queries: &[Perceived] = match (dataset.kind, degradation) {
@@ -440,7 +440,7 @@ pub async fn run(config: Config, args: EvalArgs) -> anyhow::Result<()> {
         conditions: Vec::new(),
     };
     for degradation in conditions {
-        let condition = degradation.map_or_else(|| "clean".to_string(), |d| d.to_string());
+        let condition = super::degrade::condition_name(degradation);
         let samples = match &mut backend {
             Backend::Local(local) => {
                 let (perception, database) = &**local;
