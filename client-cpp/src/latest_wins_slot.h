@@ -2,7 +2,8 @@
 // in flight and one pending. Submitting while an item is pending replaces
 // it and hands the displaced item back, so its ticket can be resolved as
 // superseded. The query thread of the kind blocks in Take() (condition
-// variable, no polling) until something is pending.
+// variable, no polling) until something is pending (and, with a readiness
+// test, ready: e.g. the writes it must follow are done).
 #ifndef HUMEM_SRC_LATEST_WINS_SLOT_H_
 #define HUMEM_SRC_LATEST_WINS_SLOT_H_
 
@@ -38,8 +39,17 @@ class LatestWinsSlot {
   // Blocks until an item is pending and nothing is in flight, then moves it
   // in flight and returns it; returns nullopt once the slot is closed.
   std::optional<T> Take() {
+    return Take([](const T&) { return true; });
+  }
+
+  // As Take(), but also waits until ready(pending item) holds. The item
+  // stays pending meanwhile, so a newer Submit() still replaces it. ready()
+  // runs under the slot's lock: it must be cheap and must not block; whoever
+  // makes it become true calls Wake() afterwards.
+  template <typename Ready>
+  std::optional<T> Take(Ready ready) {
     std::unique_lock<std::mutex> lock(mutex_);
-    changed_.wait(lock, [this] { return closed_ || (pending_ && !in_flight_); });
+    changed_.wait(lock, [&] { return closed_ || (pending_ && !in_flight_ && ready(*pending_)); });
     if (closed_) return std::nullopt;
     in_flight_ = true;
     std::optional<T> item = std::move(pending_);
@@ -51,6 +61,12 @@ class LatestWinsSlot {
   void Done() {
     std::lock_guard<std::mutex> lock(mutex_);
     in_flight_ = false;
+    changed_.notify_all();
+  }
+
+  // Something Take()'s ready() reads has changed: re-check.
+  void Wake() {
+    std::lock_guard<std::mutex> lock(mutex_);
     changed_.notify_all();
   }
 

@@ -9,8 +9,14 @@
 namespace humem::internal {
 
 QueryLane::QueryLane(QueryKind kind, v1::PlaceRecognition::Stub* stub, CallRegistry* calls, ResultBoard* board,
-                     std::chrono::milliseconds timeout, OnResult on_result)
-    : kind_(kind), stub_(stub), calls_(calls), board_(board), timeout_(timeout), on_result_(std::move(on_result)) {
+                     std::chrono::milliseconds timeout, OnResult on_result, WritesFinished writes_finished)
+    : kind_(kind),
+      stub_(stub),
+      calls_(calls),
+      board_(board),
+      timeout_(timeout),
+      on_result_(std::move(on_result)),
+      writes_finished_(std::move(writes_finished)) {
   thread_ = std::thread([this] { Run(); });
 }
 
@@ -25,7 +31,7 @@ QueryResult QueryLane::Cancelled(Ticket ticket, const char* why) const {
   return r;
 }
 
-Ticket QueryLane::Submit(v1::QueryRequest request) {
+Ticket QueryLane::Submit(v1::QueryRequest request, uint64_t after_write) {
   std::optional<Pending> displaced;
   Ticket ticket;
   LatestWinsSlot<Pending>::Submitted outcome;
@@ -34,6 +40,7 @@ Ticket QueryLane::Submit(v1::QueryRequest request) {
     ticket = board_->Issue(kind_);
     Pending pending;
     pending.ticket = ticket;
+    pending.after_write = writes_finished_ ? after_write : 0;
     pending.request = std::move(request);
     outcome = slot_.Submit(std::move(pending), &displaced);
   }
@@ -51,7 +58,10 @@ Ticket QueryLane::Submit(v1::QueryRequest request) {
 
 void QueryLane::Run() {
   for (;;) {
-    std::optional<Pending> pending = slot_.Take();
+    // A query held back for writes stays pending (supersedable) until the
+    // writer has finished them; WritesProgressed() wakes the re-check.
+    std::optional<Pending> pending =
+        slot_.Take([this](const Pending& p) { return p.after_write == 0 || writes_finished_() >= p.after_write; });
     if (!pending) return;
     board_->MarkInFlight(pending->ticket);
     QueryResult result;

@@ -1,7 +1,7 @@
 // Job: one query kind's lane: a latest-wins slot and the thread that sends
 // its queries one at a time. Submitting while a query is pending resolves
 // the pending ticket as kSuperseded; the lane's thread takes the pending
-// query, sends it (fail-fast, with the query deadline) and resolves its
+// query (once the writes it must follow, if any, are finished), sends it (fail-fast, with the query deadline) and resolves its
 // ticket with the answer, the server's QUERY_STATUS_SUPERSEDED, or the error.
 #ifndef HUMEM_SRC_QUERY_LANE_H_
 #define HUMEM_SRC_QUERY_LANE_H_
@@ -22,15 +22,22 @@ namespace humem::internal {
 class QueryLane {
  public:
   using OnResult = std::function<void(const QueryResult&)>;
+  // The sequence through which every write is applied or failed (lock-free).
+  using WritesFinished = std::function<uint64_t()>;
 
   QueryLane(QueryKind kind, v1::PlaceRecognition::Stub* stub, CallRegistry* calls, ResultBoard* board,
-            std::chrono::milliseconds timeout, OnResult on_result);
+            std::chrono::milliseconds timeout, OnResult on_result, WritesFinished writes_finished = nullptr);
   ~QueryLane();
   QueryLane(const QueryLane&) = delete;
   QueryLane& operator=(const QueryLane&) = delete;
 
   // Issues a ticket and makes the query this kind's pending one.
-  Ticket Submit(v1::QueryRequest request);
+  // With after_write > 0 the query stays pending (and can be superseded)
+  // until writes_finished() reaches after_write; only then is it sent.
+  Ticket Submit(v1::QueryRequest request, uint64_t after_write = 0);
+
+  // The writer finished a write: re-check a query held back for writes.
+  void WritesProgressed() { slot_.Wake(); }
 
   // Refuses later queries, resolves the pending one as CANCELLED and joins
   // the thread (the caller cancels the call in flight through the
@@ -40,6 +47,7 @@ class QueryLane {
  private:
   struct Pending {
     Ticket ticket = 0;
+    uint64_t after_write = 0;  // send once writes through this one are finished
     v1::QueryRequest request;
   };
 
@@ -53,6 +61,7 @@ class QueryLane {
   ResultBoard* const board_;
   const std::chrono::milliseconds timeout_;
   const OnResult on_result_;
+  const WritesFinished writes_finished_;
   std::mutex submit_mutex_;  // tickets reach the slot in issue order
   LatestWinsSlot<Pending> slot_;
   std::thread thread_;

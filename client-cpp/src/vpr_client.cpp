@@ -53,9 +53,17 @@ class VprClient::Impl {
         board_(options.result_history),
         writer_(stub_.get(), &calls_, options),
         loop_(QueryKind::kLoopClosure, stub_.get(), &calls_, &board_, options.query_timeout,
-              options.on_query_result),
+              options.on_query_result, [this] { return writer_.finished_through(); }),
         reloc_(QueryKind::kRelocalisation, stub_.get(), &calls_, &board_, options.query_timeout,
-               options.on_query_result) {}
+               options.on_query_result, [this] { return writer_.finished_through(); }) {
+    // Queries held back for writes (QueryRequest::after_queued_writes)
+    // re-check when a write finishes. The writer thread is joined in Close()
+    // before the lanes go away.
+    writer_.SetOnProgress([this] {
+      loop_.WritesProgressed();
+      reloc_.WritesProgressed();
+    });
+  }
 
   ~Impl() { Close(options_.close_drain_timeout); }
 
@@ -95,7 +103,9 @@ class VprClient::Impl {
     v1::QueryRequest proto;
     internal::ToProto(request, options_.robot_id, session(), &proto);
     internal::QueryLane& lane = request.kind == QueryKind::kRelocalisation ? reloc_ : loop_;
-    return lane.Submit(std::move(proto));
+    // Every write queued before this call has a sequence up to last_queued().
+    const uint64_t after_write = request.after_queued_writes ? writer_.last_queued() : 0;
+    return lane.Submit(std::move(proto), after_write);
   }
 
   QueryResult WaitFor(Ticket ticket, Clock::time_point deadline) { return board_.WaitFor(ticket, deadline); }

@@ -58,6 +58,16 @@ WriteStats Writer::stats() const {
   return s;
 }
 
+uint64_t Writer::last_queued() const {
+  std::lock_guard<std::mutex> lock(mutex_);
+  return next_sequence_ - 1;
+}
+
+void Writer::SetOnProgress(std::function<void()> on_progress) {
+  std::lock_guard<std::mutex> lock(mutex_);
+  on_progress_ = std::move(on_progress);
+}
+
 void Writer::Run() {
   std::unique_lock<std::mutex> lock(mutex_);
   for (;;) {
@@ -72,8 +82,20 @@ void Writer::Run() {
     const bool finished = Deliver(op);
     lock.lock();
     in_flight_ = false;
-    if (finished) finished_through_ = op.sequence;  // abandoned writes never count as finished
+    if (!finished) {  // abandoned writes never count as finished
+      changed_.notify_all();
+      continue;
+    }
+    finished_through_ = op.sequence;
+    finished_atomic_.store(op.sequence, std::memory_order_release);
     changed_.notify_all();
+    if (on_progress_) {
+      // Outside the lock: the listener takes the query lanes' locks.
+      std::function<void()> on_progress = on_progress_;
+      lock.unlock();
+      on_progress();
+      lock.lock();
+    }
   }
 }
 

@@ -8,6 +8,7 @@
 #ifndef HUMEM_SRC_WRITER_H_
 #define HUMEM_SRC_WRITER_H_
 
+#include <atomic>
 #include <chrono>
 #include <condition_variable>
 #include <cstdint>
@@ -55,6 +56,15 @@ class Writer {
 
   WriteStats stats() const;
 
+  // The sequence of the newest write queued so far (0: none yet).
+  uint64_t last_queued() const;
+  // Every write up to this sequence is applied or failed for good
+  // (lock-free: read under other components' locks).
+  uint64_t finished_through() const { return finished_atomic_.load(std::memory_order_acquire); }
+  // Called from the writer thread (no lock held) each time
+  // finished_through() advances. Set it before queueing writes.
+  void SetOnProgress(std::function<void()> on_progress);
+
   // Refuses new writes, lets the queue drain until `drain_deadline`, then
   // cancels the write in flight, joins the thread and drops (and reports)
   // what is left. Returns how many writes were dropped. Idempotent.
@@ -78,6 +88,8 @@ class Writer {
   size_t bounded_queued_ = 0;
   uint64_t next_sequence_ = 1;
   uint64_t finished_through_ = 0;  // every write up to this one is finished
+  std::atomic<uint64_t> finished_atomic_{0};  // a copy of finished_through_
+  std::function<void()> on_progress_;
   bool in_flight_ = false;
   bool closing_ = false;  // no new writes
   bool stop_ = false;     // abandon delivery

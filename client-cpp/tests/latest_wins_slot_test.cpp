@@ -3,6 +3,7 @@
 
 #include <gtest/gtest.h>
 
+#include <atomic>
 #include <chrono>
 #include <future>
 
@@ -65,6 +66,28 @@ TEST(LatestWinsSlot, CloseHandsBackThePendingItemAndWakesTake) {
   EXPECT_FALSE(blocked.get());
   EXPECT_EQ(slot.Submit(3, &displaced), Slot::Submitted::kClosed);
   EXPECT_FALSE(slot.Take());
+}
+
+TEST(LatestWinsSlot, AnItemThatIsNotReadyStaysPendingAndReplaceableUntilWoken) {
+  Slot slot;
+  std::atomic<int> threshold{100};  // items below it are ready
+  auto ready = [&](const int& item) { return item < threshold.load(); };
+  std::optional<int> displaced;
+  slot.Submit(150, &displaced);
+  auto next = std::async(std::launch::async, [&] { return slot.Take(ready); });
+  EXPECT_EQ(next.wait_for(std::chrono::milliseconds(100)), std::future_status::timeout);
+  // Still pending: a newer item replaces it (and is not ready either).
+  EXPECT_EQ(slot.Submit(160, &displaced), Slot::Submitted::kReplacedPending);
+  EXPECT_EQ(displaced, 150);
+  EXPECT_FALSE(slot.in_flight());
+  threshold = 155;
+  slot.Wake();
+  EXPECT_EQ(next.wait_for(std::chrono::milliseconds(100)), std::future_status::timeout);
+  threshold = 200;
+  slot.Wake();
+  ASSERT_EQ(next.wait_for(std::chrono::seconds(5)), std::future_status::ready);
+  EXPECT_EQ(next.get(), 160);
+  EXPECT_TRUE(slot.in_flight());
 }
 
 }  // namespace

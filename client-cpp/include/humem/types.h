@@ -199,8 +199,19 @@ struct QueryRequest {
   Optional<uint32_t> top_n;
   Optional<float> threshold;
   Layers layers;
+  // Client-side only (not sent): hold the query back until every write this
+  // client queued before SubmitQuery has been applied by the server or has
+  // failed for good, then send it. For a query by `keyframe_id` alone right
+  // after that keyframe's Insert: the server then holds the keyframe (unless
+  // the insert failed: NOT_FOUND). While held back the ticket is kQueued and
+  // still the kind's pending query (a newer submission supersedes it);
+  // `query_timeout` counts from when it is sent. No polling: the query
+  // thread sleeps until the writer reports progress.
+  bool after_queued_writes;
 
-  QueryRequest() : kind(QueryKind::kLoopClosure), scope(Scope::kUnspecified), layers(Layers::kUnspecified) {}
+  QueryRequest()
+      : kind(QueryKind::kLoopClosure), scope(Scope::kUnspecified), layers(Layers::kUnspecified),
+        after_queued_writes(false) {}
 };
 
 struct ObjectMatch {
