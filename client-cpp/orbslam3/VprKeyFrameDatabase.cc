@@ -286,7 +286,7 @@ void VprKeyFrameDatabase::NewFrame(const cv::Mat &imGray, const Frame &F)
     ++mCounters.framesCached;
 }
 
-bool VprKeyFrameDatabase::InsertLocked(KeyFrame* pKF, Entry &entry, std::shared_ptr<const humem::Image> *image)
+bool VprKeyFrameDatabase::InsertLocked(KeyFrame* pKF, Entry &entry)
 {
     entry.triedInsert = true;
     Map* pMap = pKF->GetMap();
@@ -324,8 +324,6 @@ bool VprKeyFrameDatabase::InsertLocked(KeyFrame* pKF, Entry &entry, std::shared_
     entry.serverMapId = k.map_id;
     entry.map = pMap;
     ++mCounters.inserts;
-    if(image)
-        *image = img;
     return true;
 }
 
@@ -345,8 +343,7 @@ void VprKeyFrameDatabase::NewKeyFrame(KeyFrame* pKF)
     Entry &entry = mEntries[pKF->mnId];
     entry = Entry();
     entry.kf = pKF;
-    std::shared_ptr<const humem::Image> image;
-    if(!InsertLocked(pKF, entry, &image))
+    if(!InsertLocked(pKF, entry))
         return;
 
     // Temporal context: the previous keyframes made in the same map, newest first.
@@ -360,7 +357,9 @@ void VprKeyFrameDatabase::NewKeyFrame(KeyFrame* pKF)
 
     std::ostringstream m;
     m << "insert KF " << pKF->mnId << " (frame " << pKF->mnFrameId << ", map " << mapId << ")";
-    // The loop query goes with the image: the insert may not be stored yet when it runs.
+    // The loop query asks about the stored keyframe by id, once the insert
+    // just queued is applied: the server runs its models once per keyframe,
+    // not again for the query.
     if(askLoop && pKF->mnId != 0)
     {
         humem::QueryRequest q;
@@ -368,7 +367,7 @@ void VprKeyFrameDatabase::NewKeyFrame(KeyFrame* pKF)
         q.keyframe_id = static_cast<uint64_t>(pKF->mnId);
         q.frame_id = static_cast<uint64_t>(pKF->mnFrameId);
         q.map_id = static_cast<uint64_t>(mapId);
-        q.image = image;
+        q.after_queued_writes = true;
         q.predecessor_keyframe_ids = predecessors;
         ApplyQueryOptions(q, false);
         entry.loopTicket = mClient->SubmitQuery(q);
@@ -430,7 +429,7 @@ void VprKeyFrameDatabase::add(KeyFrame* pKF)
             entry.kf = pKF;
         }
         if(!entry.inserted && !entry.triedInsert)
-            InsertLocked(pKF, entry, 0);
+            InsertLocked(pKF, entry);
         Map* pMap = pKF->GetMap();
         if(entry.inserted && pMap && (entry.map != pMap || entry.serverMapId != pMap->GetId()))
             force = true;  // moved by a map merge
@@ -577,14 +576,13 @@ void VprKeyFrameDatabase::DetectNBestCandidates(KeyFrame *pKF, std::vector<KeyFr
     if(ticket == 0 && inserted && pMap)
     {
         // No query was made with the keyframe (its map was small then): ask
-        // now, with its image if still cached (the insert may still be
-        // queued), else with the stored keyframe's features.
+        // now about the stored keyframe, once its insert is applied.
         humem::QueryRequest q;
         q.kind = humem::QueryKind::kLoopClosure;
         q.keyframe_id = static_cast<uint64_t>(pKF->mnId);
         q.frame_id = static_cast<uint64_t>(pKF->mnFrameId);
         q.map_id = static_cast<uint64_t>(pMap->GetId());
-        mImages.Get(pKF->mnFrameId, &q.image);
+        q.after_queued_writes = true;
         ApplyQueryOptions(q, false);
         ticket = mClient->SubmitQuery(q);
         std::lock_guard<std::mutex> lock(mMutexHm);

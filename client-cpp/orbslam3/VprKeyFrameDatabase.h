@@ -133,7 +133,7 @@ private:
     };
 
     // Sends pKF (image from the cache); call with mMutex held. False if not sent.
-    bool InsertLocked(KeyFrame* pKF, Entry &entry, std::shared_ptr<const humem::Image> *image);
+    bool InsertLocked(KeyFrame* pKF, Entry &entry);
     void ApplyQueryOptions(humem::QueryRequest &q, bool reloc) const;
     void SubmitRelocalisation(const Frame &F, Map* pMap);
     void MaybeUpdatePoses(Map* pMap, bool force);
