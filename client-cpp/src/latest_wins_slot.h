@@ -2,8 +2,11 @@
 // in flight and one pending. Submitting while an item is pending replaces
 // it and hands the displaced item back, so its ticket can be resolved as
 // superseded. The query thread of the kind blocks in Take() (condition
-// variable, no polling) until something is pending (and, with a readiness
-// test, ready: e.g. the writes it must follow are done).
+// variable, no polling) until something is pending and nothing is in
+// flight. The item in flight may first have to wait for something else
+// (the writes a query must follow): WaitInFlight() does that wait while the
+// item keeps its place, so a newer submission queues behind it instead of
+// displacing it, exactly as behind an item already on the wire.
 #ifndef HUMEM_SRC_LATEST_WINS_SLOT_H_
 #define HUMEM_SRC_LATEST_WINS_SLOT_H_
 
@@ -39,22 +42,32 @@ class LatestWinsSlot {
   // Blocks until an item is pending and nothing is in flight, then moves it
   // in flight and returns it; returns nullopt once the slot is closed.
   std::optional<T> Take() {
-    return Take([](const T&) { return true; });
-  }
-
-  // As Take(), but also waits until ready(pending item) holds. The item
-  // stays pending meanwhile, so a newer Submit() still replaces it. ready()
-  // runs under the slot's lock: it must be cheap and must not block; whoever
-  // makes it become true calls Wake() afterwards.
-  template <typename Ready>
-  std::optional<T> Take(Ready ready) {
     std::unique_lock<std::mutex> lock(mutex_);
-    changed_.wait(lock, [&] { return closed_ || (pending_ && !in_flight_ && ready(*pending_)); });
+    changed_.wait(lock, [&] { return closed_ || (pending_ && !in_flight_); });
     if (closed_) return std::nullopt;
     in_flight_ = true;
     std::optional<T> item = std::move(pending_);
     pending_.reset();
     return item;
+  }
+
+  enum class Waited {
+    kReady,     // ready() holds
+    kTimedOut,  // the deadline passed first
+    kClosed,    // the slot was closed first
+  };
+
+  // Called by the holder of the item in flight: blocks until ready() holds,
+  // the deadline passes or the slot closes. The item stays in flight
+  // meanwhile (newer submissions queue and replace each other behind it).
+  // ready() runs under the slot's lock: it must be cheap and must not
+  // block; whoever makes it become true calls Wake() afterwards.
+  template <typename Ready, typename TimePoint>
+  Waited WaitInFlight(Ready ready, TimePoint deadline) {
+    std::unique_lock<std::mutex> lock(mutex_);
+    const bool woken = changed_.wait_until(lock, deadline, [&] { return closed_ || ready(); });
+    if (closed_) return Waited::kClosed;
+    return woken ? Waited::kReady : Waited::kTimedOut;
   }
 
   // The in-flight item finished.
@@ -64,13 +77,14 @@ class LatestWinsSlot {
     changed_.notify_all();
   }
 
-  // Something Take()'s ready() reads has changed: re-check.
+  // Something WaitInFlight()'s ready() reads has changed: re-check.
   void Wake() {
     std::lock_guard<std::mutex> lock(mutex_);
     changed_.notify_all();
   }
 
-  // Refuses later submissions, wakes Take(), and returns the pending item.
+  // Refuses later submissions, wakes Take() and WaitInFlight(), and returns
+  // the pending item.
   std::optional<T> Close() {
     std::lock_guard<std::mutex> lock(mutex_);
     closed_ = true;

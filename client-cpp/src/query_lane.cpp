@@ -2,6 +2,7 @@
 #include "query_lane.h"
 
 #include <optional>
+#include <string>
 #include <utility>
 
 #include "convert.h"
@@ -28,6 +29,16 @@ QueryResult QueryLane::Cancelled(Ticket ticket, const char* why) const {
   r.kind = kind_;
   r.state = QueryState::kFailed;
   r.status = Status(StatusCode::kCancelled, why);
+  return r;
+}
+
+QueryResult QueryLane::TimedOutWaitingForWrites(Ticket ticket) const {
+  QueryResult r;
+  r.ticket = ticket;
+  r.kind = kind_;
+  r.state = QueryState::kFailed;
+  r.status = Status(StatusCode::kDeadlineExceeded, "not sent: the writes queued before it were not applied within " +
+                                                       std::to_string(timeout_.count()) + " ms (query_timeout)");
   return r;
 }
 
@@ -58,17 +69,31 @@ Ticket QueryLane::Submit(v1::QueryRequest request, uint64_t after_write) {
 
 void QueryLane::Run() {
   for (;;) {
-    // A query held back for writes stays pending (supersedable) until the
-    // writer has finished them; WritesProgressed() wakes the re-check.
-    std::optional<Pending> pending =
-        slot_.Take([this](const Pending& p) { return p.after_write == 0 || writes_finished_() >= p.after_write; });
+    std::optional<Pending> pending = slot_.Take();
     if (!pending) return;
+    // The query timeout runs from here: the wait for writes is part of it.
+    const auto deadline = std::chrono::system_clock::now() + timeout_;
+    if (pending->after_write > 0) {
+      // Held back for writes, the query keeps the lane's place in flight, so
+      // newer ones queue behind it as they would behind a query on the wire.
+      // WritesProgressed() wakes the re-check.
+      const uint64_t after = pending->after_write;
+      const auto waited = slot_.WaitInFlight([&] { return writes_finished_() >= after; }, deadline);
+      if (waited != LatestWinsSlot<Pending>::Waited::kReady) {
+        QueryResult r = waited == LatestWinsSlot<Pending>::Waited::kClosed
+                            ? Cancelled(pending->ticket, "the client closed before the writes the query follows were applied")
+                            : TimedOutWaitingForWrites(pending->ticket);
+        slot_.Done();
+        Publish(r, false);
+        continue;
+      }
+    }
     board_->MarkInFlight(pending->ticket);
     QueryResult result;
     result.ticket = pending->ticket;
     result.kind = kind_;
     grpc::ClientContext context;
-    context.set_deadline(std::chrono::system_clock::now() + timeout_);
+    context.set_deadline(deadline);
     v1::QueryResponse response;
     const auto sent = std::chrono::steady_clock::now();
     grpc::Status status;

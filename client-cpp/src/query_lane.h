@@ -1,8 +1,10 @@
 // Job: one query kind's lane: a latest-wins slot and the thread that sends
 // its queries one at a time. Submitting while a query is pending resolves
 // the pending ticket as kSuperseded; the lane's thread takes the pending
-// query (once the writes it must follow, if any, are finished), sends it (fail-fast, with the query deadline) and resolves its
-// ticket with the answer, the server's QUERY_STATUS_SUPERSEDED, or the error.
+// query, waits (holding the lane) for the writes it must follow, if any,
+// sends it (fail-fast, with the query deadline, which the wait for writes
+// counts against) and resolves its ticket with the answer, the server's
+// QUERY_STATUS_SUPERSEDED, or the error.
 #ifndef HUMEM_SRC_QUERY_LANE_H_
 #define HUMEM_SRC_QUERY_LANE_H_
 
@@ -32,8 +34,9 @@ class QueryLane {
   QueryLane& operator=(const QueryLane&) = delete;
 
   // Issues a ticket and makes the query this kind's pending one.
-  // With after_write > 0 the query stays pending (and can be superseded)
-  // until writes_finished() reaches after_write; only then is it sent.
+  // With after_write > 0 the lane, once it takes the query, holds it until
+  // writes_finished() reaches after_write (at most the query timeout) and
+  // only then sends it; newer queries wait behind it meanwhile.
   Ticket Submit(v1::QueryRequest request, uint64_t after_write = 0);
 
   // The writer finished a write: re-check a query held back for writes.
@@ -54,6 +57,7 @@ class QueryLane {
   void Run();
   void Publish(const QueryResult& result, bool from_server);
   QueryResult Cancelled(Ticket ticket, const char* why) const;
+  QueryResult TimedOutWaitingForWrites(Ticket ticket) const;
 
   const QueryKind kind_;
   v1::PlaceRecognition::Stub* const stub_;

@@ -1,12 +1,13 @@
 // Job: server tests of QueryRequest::after_queued_writes: a query by keyframe
-// id alone, submitted right after that keyframe's Insert, is held back (kQueued,
-// still supersedable) until the writer has finished the writes queued before
-// it, then answered from the stored keyframe; without the option the same
-// query can overtake the insert and get NOT_FOUND; a failed insert releases
-// the query (NOT_FOUND) instead of holding it forever; latest-wins holds and
-// the other kind's lane is never held. The writer is held deterministically
-// by blocking on_write_failed (it runs on the writer thread) after a refused
-// write, or by freezing the server (SIGSTOP).
+// id alone, submitted right after that keyframe's Insert, is held back (kQueued)
+// until the writer has finished the writes queued before it, then answered
+// from the stored keyframe; without the option the same query can overtake
+// the insert and get NOT_FOUND; a failed insert releases the query
+// (NOT_FOUND) instead of holding it forever; a held query keeps the lane's
+// place (newer queries queue behind it, latest wins among them) for at most
+// the query timeout; the other kind's lane is never held. The writer is held
+// deterministically by blocking on_write_failed (it runs on the writer
+// thread) after a refused write, or by freezing the server (SIGSTOP).
 #include <gtest/gtest.h>
 
 #include <chrono>
@@ -172,7 +173,7 @@ TEST_F(AfterWritesTest, AFailedInsertReleasesTheQueryWhichGetsNotFound) {
   EXPECT_EQ(client->GetWriteStats().failed, 1u);
 }
 
-TEST_F(AfterWritesTest, LatestWinsHoldsForHeldBackQueries) {
+TEST_F(AfterWritesTest, AHeldQueryKeepsTheLaneAndNewerOnesQueueBehindIt) {
   WriterGate gate;
   humem::ClientOptions options;
   gate.Install(&options);
@@ -183,12 +184,17 @@ TEST_F(AfterWritesTest, LatestWinsHoldsForHeldBackQueries) {
   client->Insert(LookingLike(200, 2));
   client->Insert(LookingLike(201, 4));
 
-  // A held-back query is the pending one: a newer submission supersedes it at once.
+  // The lane takes the held-back query (the lane thread is idle, so within
+  // the 200 ms) and keeps its place while the writes are held.
   const Ticket first = client->SubmitQuery(ById(200, true));
+  EXPECT_EQ(client->WaitFor(first, Ms(200)).state, QueryState::kQueued);
+  // Newer queries queue behind it, and the newest of them wins, as behind a
+  // query on the wire: the held one is not superseded.
   const Ticket second = client->SubmitQuery(ById(201, true));
-  const QueryResult superseded = client->WaitFor(first, Clock::now());
-  EXPECT_EQ(superseded.state, QueryState::kSuperseded);
-  EXPECT_EQ(client->WaitFor(second, Ms(200)).state, QueryState::kQueued);
+  const Ticket third = client->SubmitQuery(QueryWith(Near(RandomDescriptor(6), 6)));  // without the option
+  EXPECT_EQ(client->WaitFor(second, Clock::now()).state, QueryState::kSuperseded);
+  EXPECT_EQ(client->WaitFor(first, Clock::now()).state, QueryState::kQueued);
+  EXPECT_EQ(client->WaitFor(third, Ms(200)).state, QueryState::kQueued);  // not sent past the held one
 
   // The other kind is not held meanwhile.
   const QueryResult reloc =
@@ -197,23 +203,43 @@ TEST_F(AfterWritesTest, LatestWinsHoldsForHeldBackQueries) {
   ASSERT_EQ(reloc.state, QueryState::kAnswered) << reloc.status.ToString();
   EXPECT_EQ(reloc.candidates.at(0).keyframe_id, 9u);
 
-  // A newer query without the option supersedes the held one and goes out at once.
-  const Ticket plain = client->SubmitQuery(QueryWith(Near(RandomDescriptor(6), 6)));
-  EXPECT_EQ(client->WaitFor(second, Clock::now()).state, QueryState::kSuperseded);
-  const QueryResult answered = client->WaitFor(plain, Ms(15000));
-  ASSERT_EQ(answered.state, QueryState::kAnswered) << answered.status.ToString();
-  EXPECT_EQ(answered.candidates.at(0).keyframe_id, 6u);
-
-  // Held again, then released: the newest held query is answered.
-  const Ticket third = client->SubmitQuery(ById(201, true));
-  EXPECT_EQ(client->WaitFor(third, Ms(200)).state, QueryState::kQueued);
+  // Released: the held query is answered from its stored keyframe, then the newest.
   gate.Release();
-  const QueryResult r = client->WaitFor(third, Ms(15000));
+  const QueryResult r = client->WaitFor(first, Ms(15000));
   ASSERT_EQ(r.state, QueryState::kAnswered) << r.status.ToString();
-  EXPECT_EQ(r.candidates.at(0).keyframe_id, 4u);
+  EXPECT_EQ(r.candidates.at(0).keyframe_id, 2u);
+  const QueryResult newest = client->WaitFor(third, Ms(15000));
+  ASSERT_EQ(newest.state, QueryState::kAnswered) << newest.status.ToString();
+  EXPECT_EQ(newest.candidates.at(0).keyframe_id, 6u);
   QueryResult latest;
   ASSERT_TRUE(client->Latest(QueryKind::kLoopClosure, &latest));
   EXPECT_EQ(latest.ticket, third);
+}
+
+TEST_F(AfterWritesTest, AQueryWhoseWritesAreNotAppliedWithinTheQueryTimeoutFailsUnsentAndFreesTheLane) {
+  WriterGate gate;
+  humem::ClientOptions options;
+  options.query_timeout = Ms(300);
+  gate.Install(&options);
+  auto client = Connect(server_, "s1", options);
+  StoreTen(*client);
+  client->Insert(Refused(100));
+  ASSERT_TRUE(gate.WaitEntered());
+  client->Insert(LookingLike(200, 2));
+
+  const auto submitted = Clock::now();
+  const Ticket held = client->SubmitQuery(ById(200, true));
+  const QueryResult r = client->WaitFor(held, Ms(10000));
+  EXPECT_EQ(r.state, QueryState::kFailed) << QueryStateName(r.state);
+  EXPECT_EQ(r.status.code, StatusCode::kDeadlineExceeded) << r.status.ToString();
+  EXPECT_EQ(r.round_trip_seconds, 0.0);  // never sent
+  EXPECT_GE(Clock::now() - submitted, Ms(250));
+
+  // The lane is free again: the next query goes out while the writes are still held.
+  const QueryResult next = client->WaitFor(client->SubmitQuery(QueryWith(Near(RandomDescriptor(6), 6))), Ms(10000));
+  ASSERT_EQ(next.state, QueryState::kAnswered) << next.status.ToString();
+  EXPECT_EQ(next.candidates.at(0).keyframe_id, 6u);
+  gate.Release();
 }
 
 }  // namespace

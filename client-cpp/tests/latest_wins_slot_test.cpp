@@ -68,26 +68,45 @@ TEST(LatestWinsSlot, CloseHandsBackThePendingItemAndWakesTake) {
   EXPECT_FALSE(slot.Take());
 }
 
-TEST(LatestWinsSlot, AnItemThatIsNotReadyStaysPendingAndReplaceableUntilWoken) {
+TEST(LatestWinsSlot, AnItemWaitingInFlightKeepsItsPlaceWhileNewerOnesReplaceEachOther) {
   Slot slot;
-  std::atomic<int> threshold{100};  // items below it are ready
-  auto ready = [&](const int& item) { return item < threshold.load(); };
+  std::atomic<bool> ready{false};
   std::optional<int> displaced;
-  slot.Submit(150, &displaced);
-  auto next = std::async(std::launch::async, [&] { return slot.Take(ready); });
-  EXPECT_EQ(next.wait_for(std::chrono::milliseconds(100)), std::future_status::timeout);
-  // Still pending: a newer item replaces it (and is not ready either).
-  EXPECT_EQ(slot.Submit(160, &displaced), Slot::Submitted::kReplacedPending);
-  EXPECT_EQ(displaced, 150);
-  EXPECT_FALSE(slot.in_flight());
-  threshold = 155;
-  slot.Wake();
-  EXPECT_EQ(next.wait_for(std::chrono::milliseconds(100)), std::future_status::timeout);
-  threshold = 200;
-  slot.Wake();
-  ASSERT_EQ(next.wait_for(std::chrono::seconds(5)), std::future_status::ready);
-  EXPECT_EQ(next.get(), 160);
+  slot.Submit(1, &displaced);
+  ASSERT_EQ(slot.Take(), 1);
+  const auto far = std::chrono::steady_clock::now() + std::chrono::seconds(10);
+  auto waiting = std::async(std::launch::async, [&] { return slot.WaitInFlight([&] { return ready.load(); }, far); });
+  EXPECT_EQ(waiting.wait_for(std::chrono::milliseconds(100)), std::future_status::timeout);
+  // 1 holds the place in flight: 2 queues behind it, 3 replaces 2, never 1.
+  EXPECT_EQ(slot.Submit(2, &displaced), Slot::Submitted::kAccepted);
+  EXPECT_EQ(slot.Submit(3, &displaced), Slot::Submitted::kReplacedPending);
+  EXPECT_EQ(displaced, 2);
   EXPECT_TRUE(slot.in_flight());
+  slot.Wake();  // nothing changed: still waiting
+  EXPECT_EQ(waiting.wait_for(std::chrono::milliseconds(100)), std::future_status::timeout);
+  ready = true;
+  slot.Wake();
+  ASSERT_EQ(waiting.wait_for(std::chrono::seconds(5)), std::future_status::ready);
+  EXPECT_EQ(waiting.get(), Slot::Waited::kReady);
+  slot.Done();
+  EXPECT_EQ(slot.Take(), 3);
+}
+
+TEST(LatestWinsSlot, WaitInFlightEndsAtItsDeadlineOrWhenTheSlotCloses) {
+  Slot slot;
+  std::optional<int> displaced;
+  slot.Submit(1, &displaced);
+  ASSERT_EQ(slot.Take(), 1);
+  const auto soon = std::chrono::steady_clock::now() + std::chrono::milliseconds(50);
+  EXPECT_EQ(slot.WaitInFlight([] { return false; }, soon), Slot::Waited::kTimedOut);
+  EXPECT_EQ(slot.WaitInFlight([] { return true; }, soon), Slot::Waited::kReady);  // checked first
+
+  const auto far = std::chrono::steady_clock::now() + std::chrono::seconds(10);
+  auto waiting = std::async(std::launch::async, [&] { return slot.WaitInFlight([] { return false; }, far); });
+  EXPECT_EQ(waiting.wait_for(std::chrono::milliseconds(50)), std::future_status::timeout);
+  slot.Close();
+  ASSERT_EQ(waiting.wait_for(std::chrono::seconds(5)), std::future_status::ready);
+  EXPECT_EQ(waiting.get(), Slot::Waited::kClosed);
 }
 
 }  // namespace

@@ -203,10 +203,13 @@ struct QueryRequest {
   // client queued before SubmitQuery has been applied by the server or has
   // failed for good, then send it. For a query by `keyframe_id` alone right
   // after that keyframe's Insert: the server then holds the keyframe (unless
-  // the insert failed: NOT_FOUND). While held back the ticket is kQueued and
-  // still the kind's pending query (a newer submission supersedes it);
-  // `query_timeout` counts from when it is sent. No polling: the query
-  // thread sleeps until the writer reports progress.
+  // the insert failed: NOT_FOUND). Latest wins as for any query: while it
+  // is pending a newer submission supersedes it; once the kind's lane takes
+  // it, it holds the lane while it waits for the writes (its ticket stays
+  // kQueued until sent), and newer queries wait behind it as behind a query
+  // in flight. `query_timeout` counts from when the lane takes it: writes
+  // not applied by then fail it with DEADLINE_EXCEEDED, unsent. No polling:
+  // the query thread sleeps until the writer reports progress.
   bool after_queued_writes;
 
   QueryRequest()
