@@ -236,7 +236,10 @@ std::string VprKeyFrameDatabase::DescribeCandidate(const humem::Candidate &c) co
 
 void VprKeyFrameDatabase::ApplyQueryOptions(humem::QueryRequest &q, bool reloc) const
 {
-    q.scope = humem::Scope::kAllMaps;  // loop vs merge is decided here, by each keyframe's current map
+    // Loop vs merge is decided here, by each keyframe's current map. ORB-SLAM3
+    // v1.0 relocalises in the active map only: ask about that map, so that
+    // look-alike keyframes of older maps do not crowd the answer.
+    q.scope = reloc && q.map_id.has_value() ? humem::Scope::kSameMap : humem::Scope::kAllMaps;
     if(mSettings.topN > 0)
         q.top_n = static_cast<uint32_t>(mSettings.topN);
     float threshold = reloc && mSettings.relocThreshold >= 0.f ? mSettings.relocThreshold : mSettings.threshold;
@@ -657,6 +660,9 @@ void VprKeyFrameDatabase::DetectNBestCandidates(KeyFrame *pKF, std::vector<KeyFr
         }
         if(!pKFi) { m << "skipped: unknown keyframe"; continue; }
         if(pKFi == pKF) { m << "skipped: itself"; continue; }
+        // DBoW2 only holds keyframes LoopClosing has already processed; a
+        // newer one (LoopClosing lags behind) is for its own turn.
+        if(pKFi->mnId > pKF->mnId) { m << "skipped: newer than KF " << pKF->mnId; continue; }
         if(pKFi->isBad()) { m << "skipped: bad"; continue; }
         Map* pMapi = pKFi->GetMap();
         if(!pMapi || pMapi->IsBad()) { m << "skipped: no map"; continue; }
