@@ -13,6 +13,7 @@
 #include <chrono>
 #include <condition_variable>
 #include <limits>
+#include <memory>
 #include <mutex>
 
 #include "humem/humem.h"
@@ -98,6 +99,21 @@ class AfterWritesTest : public ::testing::Test {
     for (uint64_t id = 1; id <= 10; ++id) client.Insert(MakeKeyframe(id, 0));
     ASSERT_TRUE(client.Flush(Ms(10000)).ok());
   }
+  // A client with keyframes 1..10 stored whose writer `gate` then holds
+  // after a refused write: writes queued from now on stay queued in the
+  // client until gate.Release(). Null (and a failure) if it was not held.
+  std::unique_ptr<humem::VprClient> ConnectWithWriterHeld(WriterGate& gate,
+                                                          humem::ClientOptions options = humem::ClientOptions()) {
+    gate.Install(&options);
+    auto client = Connect(server_, "s1", options);
+    StoreTen(*client);
+    client->Insert(Refused(100));
+    if (!gate.WaitEntered()) {
+      ADD_FAILURE() << "the writer was not held";
+      return nullptr;
+    }
+    return client;
+  }
   TempDir dir_;
   HumemServer server_{dir_.path()};
 };
@@ -139,15 +155,10 @@ TEST_F(AfterWritesTest, QueryByIdRightAfterInsertIsAnsweredEvenWithTheServerFroz
 }
 
 TEST_F(AfterWritesTest, WithoutTheOptionTheQueryOvertakesTheQueuedInsertWithItTheQueryWaits) {
-  WriterGate gate;
-  humem::ClientOptions options;
-  gate.Install(&options);
-  auto client = Connect(server_, "s1", options);
-  StoreTen(*client);
-
   // The writer is held after a refused write; the insert of 200 stays queued in the client.
-  client->Insert(Refused(100));
-  ASSERT_TRUE(gate.WaitEntered());
+  WriterGate gate;
+  auto client = ConnectWithWriterHeld(gate);
+  ASSERT_TRUE(client);
   ASSERT_EQ(client->Insert(LookingLike(200, 7)).state, WriteState::kQueued);
 
   const QueryResult overtaking = client->WaitFor(client->SubmitQuery(ById(200, false)), Ms(15000));
@@ -175,12 +186,8 @@ TEST_F(AfterWritesTest, AFailedInsertReleasesTheQueryWhichGetsNotFound) {
 
 TEST_F(AfterWritesTest, AHeldQueryKeepsTheLaneAndNewerOnesQueueBehindIt) {
   WriterGate gate;
-  humem::ClientOptions options;
-  gate.Install(&options);
-  auto client = Connect(server_, "s1", options);
-  StoreTen(*client);
-  client->Insert(Refused(100));
-  ASSERT_TRUE(gate.WaitEntered());
+  auto client = ConnectWithWriterHeld(gate);
+  ASSERT_TRUE(client);
   client->Insert(LookingLike(200, 2));
   client->Insert(LookingLike(201, 4));
 
@@ -220,11 +227,8 @@ TEST_F(AfterWritesTest, AQueryWhoseWritesAreNotAppliedWithinTheQueryTimeoutFails
   WriterGate gate;
   humem::ClientOptions options;
   options.query_timeout = Ms(300);
-  gate.Install(&options);
-  auto client = Connect(server_, "s1", options);
-  StoreTen(*client);
-  client->Insert(Refused(100));
-  ASSERT_TRUE(gate.WaitEntered());
+  auto client = ConnectWithWriterHeld(gate, options);
+  ASSERT_TRUE(client);
   client->Insert(LookingLike(200, 2));
 
   const auto submitted = Clock::now();
