@@ -23,22 +23,12 @@ QueryLane::QueryLane(QueryKind kind, v1::PlaceRecognition::Stub* stub, CallRegis
 
 QueryLane::~QueryLane() { Close(); }
 
-QueryResult QueryLane::Cancelled(Ticket ticket, const char* why) const {
+QueryResult QueryLane::Unsent(Ticket ticket, Status why) const {
   QueryResult r;
   r.ticket = ticket;
   r.kind = kind_;
   r.state = QueryState::kFailed;
-  r.status = Status(StatusCode::kCancelled, why);
-  return r;
-}
-
-QueryResult QueryLane::TimedOutWaitingForWrites(Ticket ticket) const {
-  QueryResult r;
-  r.ticket = ticket;
-  r.kind = kind_;
-  r.state = QueryState::kFailed;
-  r.status = Status(StatusCode::kDeadlineExceeded, "not sent: the writes queued before it were not applied within " +
-                                                       std::to_string(timeout_.count()) + " ms (query_timeout)");
+  r.status = std::move(why);
   return r;
 }
 
@@ -56,7 +46,7 @@ Ticket QueryLane::Submit(v1::QueryRequest request, uint64_t after_write) {
     outcome = slot_.Submit(std::move(pending), &displaced);
   }
   if (outcome == LatestWinsSlot<Pending>::Submitted::kClosed) {
-    Publish(Cancelled(ticket, "the client is closed"), false);
+    Publish(Unsent(ticket, Status(StatusCode::kCancelled, "the client is closed")), false);
   } else if (displaced) {
     QueryResult r;
     r.ticket = displaced->ticket;
@@ -80,9 +70,12 @@ void QueryLane::Run() {
       const uint64_t after = pending->after_write;
       const auto waited = slot_.WaitInFlight([&] { return writes_finished_() >= after; }, deadline);
       if (waited != LatestWinsSlot<Pending>::Waited::kReady) {
-        QueryResult r = waited == LatestWinsSlot<Pending>::Waited::kClosed
-                            ? Cancelled(pending->ticket, "the client closed before the writes the query follows were applied")
-                            : TimedOutWaitingForWrites(pending->ticket);
+        const Status why =
+            waited == LatestWinsSlot<Pending>::Waited::kClosed
+                ? Status(StatusCode::kCancelled, "the client closed before the writes the query follows were applied")
+                : Status(StatusCode::kDeadlineExceeded, "not sent: the writes queued before it were not applied within " +
+                                                            std::to_string(timeout_.count()) + " ms (query_timeout)");
+        const QueryResult r = Unsent(pending->ticket, why);
         slot_.Done();
         Publish(r, false);
         continue;
@@ -122,7 +115,7 @@ void QueryLane::Publish(const QueryResult& result, bool from_server) {
 
 void QueryLane::Close() {
   std::optional<Pending> left = slot_.Close();
-  if (left) Publish(Cancelled(left->ticket, "the client closed before the query was sent"), false);
+  if (left) Publish(Unsent(left->ticket, Status(StatusCode::kCancelled, "the client closed before the query was sent")), false);
   if (thread_.joinable()) thread_.join();
 }
 

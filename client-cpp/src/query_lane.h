@@ -56,8 +56,8 @@ class QueryLane {
 
   void Run();
   void Publish(const QueryResult& result, bool from_server);
-  QueryResult Cancelled(Ticket ticket, const char* why) const;
-  QueryResult TimedOutWaitingForWrites(Ticket ticket) const;
+  // A ticket resolved as failed without being sent (closed, or its writes late).
+  QueryResult Unsent(Ticket ticket, Status why) const;
 
   const QueryKind kind_;
   v1::PlaceRecognition::Stub* const stub_;
