@@ -39,6 +39,12 @@ async fn main() -> anyhow::Result<()> {
             init_logging(LogFormat::Plain, "warn,ort::logging=error");
             humem::eval::run::run(config, args).await
         }
+        Command::Export { data_dir } => {
+            init_logging(LogFormat::Plain, "warn");
+            let count = humem::cli::export::export(&data_dir, &mut std::io::stdout().lock())?;
+            eprintln!("humem export: {count} keyframes");
+            Ok(())
+        }
         command => {
             init_logging(LogFormat::Plain, "warn");
             humem::cli::run_client(command).await

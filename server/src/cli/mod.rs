@@ -5,6 +5,7 @@
 //! a script sends is exactly what the `.proto` documents.
 
 pub(crate) mod client;
+pub mod export;
 pub mod load;
 
 use std::net::SocketAddr;
@@ -88,6 +89,13 @@ pub enum Command {
     Stats {
         #[command(flatten)]
         server: ServerArg,
+    },
+    /// Print every keyframe of a stopped server's store (ids, map, pose;
+    /// one JSON object per line), read from its data directory.
+    Export {
+        /// Data directory of the store (no server may be running on it).
+        #[arg(long)]
+        data_dir: PathBuf,
     },
     /// Measure the service's parts and print a table.
     #[command(subcommand)]
