@@ -1,6 +1,7 @@
 #!/usr/bin/env python3
 """One Markdown table from the JSON files of several `humem eval` runs
-(optionally only some methods: --methods SCAL,Full,ORB-BoW).
+(optionally only some methods: --methods SCAL,Full,ORB-BoW): recall, the
+precision figures at the operating point, and the median latency.
 
 Used by scripts/eval-all.sh to make the README's results section; standard
 library only, so it runs with any Python 3.
@@ -18,16 +19,21 @@ def rows(report, name):
     for condition in report["conditions"]:
         for r in condition["results"]:
             lat = r["latency"]
+            p = r["precision"]
+            without = p["queries"] - p["with_match"]
+            alarms = f"{p['false_no_match']}/{without}" if without else "-"
             yield (
                 f"| {name} | {condition['condition']} | {r['method']} "
                 f"| {r['recall_at_1']:.3f} | {r['recall_at_5']:.3f} | {r['mrr']:.3f} "
-                f"| {lat['mean_ms']:.1f} | {lat['median_ms']:.1f} | {lat['p95_ms']:.1f} |"
+                f"| {p['answered']}/{p['queries']} | {p['false_top']} | {alarms} "
+                f"| {p['candidate_precision']:.3f} | {p['recall_at_full_precision']:.3f} "
+                f"| {lat['median_ms']:.1f} |"
             )
 
 
 def main(paths, methods=None):
-    print("| data set | condition | method | R@1 | R@5 | MRR | mean ms | median ms | p95 ms |")
-    print("| --- | --- | --- | --- | --- | --- | --- | --- | --- |")
+    print("| data set | condition | method | R@1 | R@5 | MRR | answered | false top-1 | false alarms (no match) | candidate precision | R@100%P | median ms |")
+    print("| --- | --- | --- | --- | --- | --- | --- | --- | --- | --- | --- | --- |")
     for path in paths:
         with open(path) as f:
             report = json.load(f)

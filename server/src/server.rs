@@ -33,7 +33,7 @@ pub async fn serve(config: Config) -> anyhow::Result<()> {
     let limits = Limits {
         scene_top_k: config.store.scene_top_k,
         min_frame_gap: config.query.min_frame_gap,
-        threshold: config.vpr.tau_s,
+        threshold: config.vpr.threshold(),
         top_n: config.vpr.max_candidates,
     };
     let perception = if config.perception.enabled {

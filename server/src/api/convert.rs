@@ -73,6 +73,35 @@ pub fn candidate(c: &Candidate) -> proto::Candidate {
                     distinctiveness: m.matched.distinctiveness,
                 })
                 .collect(),
+            raw_score: c.raw_score,
+            scene_confidence: c.scene_confidence,
+            null_median: c.null.location,
+            null_samples: c.null.samples as u64,
+            contradiction: c.contradiction.score,
+            text_contradiction: c.contradiction.text,
+            object_absence: c.contradiction.absence,
+            text_conflicts: c
+                .text_conflicts
+                .iter()
+                .map(|p| proto::TextConflict {
+                    query_object: index(p.conflict.query_object),
+                    candidate_object: index(p.conflict.candidate_object),
+                    query_text: p.query_text.clone(),
+                    candidate_text: p.candidate_text.clone(),
+                    agreement: p.conflict.agreement,
+                    conflict: p.conflict.conflict,
+                })
+                .collect(),
+            missing_objects: c
+                .missing_objects
+                .iter()
+                .map(|p| proto::MissingObject {
+                    in_query: p.missing.in_query,
+                    object: index(p.missing.object),
+                    class_name: p.class_name.clone(),
+                    weight: p.missing.weight,
+                })
+                .collect(),
         }),
     }
 }
@@ -147,6 +176,7 @@ pub fn query_response(outcome: &QueryOutcome) -> proto::QueryResponse {
         used_predecessor_ids: outcome.used_predecessors.clone(),
         timings: timings(&outcome.timings),
         status: proto::QueryStatus::Answered as i32,
+        threshold: outcome.threshold,
     }
 }
 

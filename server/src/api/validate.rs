@@ -589,6 +589,7 @@ pub fn query(mut r: proto::QueryRequest, limits: &Limits) -> Result<QuerySpec> {
         proto::Layers::Scal => Layers::SCAL,
         proto::Layers::ScalOsrl => Layers::SCAL_OSRL,
         proto::Layers::ScalOgtl => Layers::SCAL_OGTL,
+        proto::Layers::FullSupportOnly => Layers::FULL_SUPPORT_ONLY,
     };
     let kind = match enumeration::<proto::QueryKind>("kind", r.kind)? {
         proto::QueryKind::Unspecified => proto::QueryKind::LoopClosure,

@@ -15,7 +15,7 @@ use anyhow::Context;
 use super::dataset::Dataset;
 use super::degrade::Degradation;
 use super::orb_bow::{self, BowParams, Descriptor, OrbBowIndex, OrbParams};
-use super::run::{image_bytes, progress, Samples};
+use super::run::{image_bytes, progress, Samples, Selection};
 use super::truth::Kind;
 
 /// Name of the method in reports.
@@ -86,8 +86,7 @@ impl OrbBaseline {
         &self,
         dataset: &Dataset,
         degradation: Option<&Degradation>,
-        selected: &[usize],
-        timed: &[usize],
+        selection: &Selection,
         top_k: usize,
     ) -> anyhow::Result<Samples> {
         let condition = super::degrade::condition_name(degradation);
@@ -105,7 +104,7 @@ impl OrbBaseline {
             }
         };
         let mut samples = Samples::default();
-        for (n, &q) in selected.iter().enumerate() {
+        for q in selection.all() {
             let started = Instant::now();
             let scores = self.index.score_all(&queries[q].descriptors);
             let mut ranked: Vec<usize> = (0..scores.len())
@@ -117,8 +116,9 @@ impl OrbBaseline {
             ranked.sort_by(|&a, &b| scores[b].total_cmp(&scores[a]).then(a.cmp(&b)));
             ranked.truncate(top_k);
             let scoring = started.elapsed();
-            samples.answers.push((ranked, dataset.matches[&q].clone()));
-            if timed.contains(&n) {
+            let ranked: Vec<(usize, f32)> = ranked.iter().map(|&r| (r, scores[r])).collect();
+            samples.record(&ranked, dataset.matches.get(&q));
+            if selection.is_timed(q) {
                 samples.latencies.push(queries[q].took + scoring);
                 *samples.stage_ms.entry("orb".into()).or_default() +=
                     queries[q].took.as_secs_f64() * 1e3;

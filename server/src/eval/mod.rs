@@ -6,6 +6,8 @@
 //! - [`dataset`]: data set folders and where their ground truth comes from;
 //! - [`truth`]: ground truth files, pose files and the paper's pose rule;
 //! - [`metrics`]: Recall@K, MRR, query selection and latency statistics;
+//! - [`precision`]: false alarms, candidate precision, recall at 100 %
+//!   precision and the precision–recall curve at the operating point;
 //! - [`degrade`]: the motion blur and exposure reduction of the conditions;
 //! - [`plots`]: the report's charts (accuracy–latency, recall per condition);
 //! - [`remote`]: the run measured through a service over gRPC (`--server`);
@@ -18,6 +20,7 @@ pub mod degrade;
 pub mod metrics;
 pub mod orb_bow;
 pub mod plots;
+pub mod precision;
 pub mod remote;
 pub mod run;
 pub mod truth;

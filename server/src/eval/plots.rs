@@ -1,5 +1,6 @@
-//! The report's two pictures: accuracy against latency per method (the
-//! paper's scatter), and recall per condition.
+//! The report's pictures: accuracy against latency per method (the paper's
+//! scatter), recall per condition, and precision against recall on the
+//! clean condition (one curve per method, swept over the top-1 score).
 //!
 //! Charts are drawn as SVG by `plotters` (its SVG backend needs no system
 //! libraries) and rasterised to PNG by `resvg`, which finds its fonts among
@@ -219,10 +220,80 @@ pub fn svg_to_png(svg: &str, path: &Path) -> anyhow::Result<()> {
 }
 
 /// Writes `accuracy_latency.{svg,png}` and `recall_per_condition.{svg,png}`.
+/// Precision against recall of the top-1 answer on the first (clean)
+/// condition: one line per method through its curve's points, highest
+/// threshold first; the operating point of each method is a filled dot.
+pub fn precision_recall_svg(report: &EvalReport) -> anyhow::Result<String> {
+    let names = methods(report);
+    let Some(condition) = report.conditions.first() else {
+        return Ok(String::new());
+    };
+    let mut svg = String::new();
+    {
+        let root = SVGBackend::with_string(&mut svg, (800, 520)).into_drawing_area();
+        root.fill(&WHITE)?;
+        let mut chart = ChartBuilder::on(&root)
+            .caption(
+                format!(
+                    "{} ({}): precision against recall of the top-1 answer",
+                    report.dataset, condition.condition
+                ),
+                ("sans-serif", 22),
+            )
+            .margin(16)
+            .x_label_area_size(48)
+            .y_label_area_size(56)
+            .build_cartesian_2d(0.0f64..1.02, 0.0f64..1.05)?;
+        chart
+            .configure_mesh()
+            .light_line_style(WHITE)
+            .x_desc("recall (queries with a match)")
+            .y_desc("precision (answered queries)")
+            .label_style(("sans-serif", 14))
+            .draw()?;
+        for r in &condition.results {
+            let c = colour(&names, &r.method);
+            let line: Vec<(f64, f64)> = r
+                .precision
+                .curve
+                .iter()
+                .map(|p| (p.recall, p.precision))
+                .collect();
+            chart
+                .draw_series(LineSeries::new(line, c.stroke_width(2)))?
+                .label(r.method.as_str())
+                .legend(move |(x, y)| {
+                    PathElement::new(vec![(x, y), (x + 16, y)], c.stroke_width(2))
+                });
+            let p = &r.precision;
+            let answered_precision = if p.answered == 0 {
+                1.0
+            } else {
+                (p.answered - p.false_top) as f64 / p.answered as f64
+            };
+            chart.draw_series(std::iter::once(Circle::new(
+                (p.recall_at_threshold, answered_precision),
+                5,
+                c.filled(),
+            )))?;
+        }
+        chart
+            .configure_series_labels()
+            .position(SeriesLabelPosition::LowerLeft)
+            .background_style(WHITE.mix(0.9))
+            .border_style(BLACK)
+            .label_font(("sans-serif", 14))
+            .draw()?;
+        root.present()?;
+    }
+    Ok(svg)
+}
+
 pub fn write_all(report: &EvalReport, dir: &Path) -> anyhow::Result<Vec<String>> {
     let charts = [
         ("accuracy_latency", accuracy_latency_svg(report)?),
         ("recall_per_condition", recall_per_condition_svg(report)?),
+        ("precision_recall", precision_recall_svg(report)?),
     ];
     let mut written = Vec::new();
     for (name, svg) in charts {
@@ -238,6 +309,7 @@ pub fn write_all(report: &EvalReport, dir: &Path) -> anyhow::Result<Vec<String>>
 mod tests {
     use super::*;
     use crate::eval::metrics::{LatencyStats, Retrieval};
+    use crate::eval::precision::{OperatingPoint, ScoredQuery};
     use crate::eval::run::{ConditionResult, MethodResult};
 
     fn result(method: &str, r1: f64, ms: f64) -> MethodResult {
@@ -256,6 +328,22 @@ mod tests {
                 p95_ms: ms * 1.5,
             },
             stages_ms: Default::default(),
+            precision: crate::eval::precision::precision(
+                &[
+                    ScoredQuery {
+                        ranked: vec![(0.9, true)],
+                        has_match: true,
+                    },
+                    ScoredQuery {
+                        ranked: vec![(0.5, false)],
+                        has_match: false,
+                    },
+                ],
+                OperatingPoint {
+                    threshold: 0.4,
+                    max_candidates: 5,
+                },
+            ),
         }
     }
 
@@ -267,6 +355,10 @@ mod tests {
             references: 10,
             queries: 10,
             min_frame_gap: None,
+            queries_without_match: 1,
+            threshold: 0.4,
+            calibration: "null".into(),
+            max_candidates: 5,
             objects: crate::eval::run::ObjectSource::Models,
             conditions: vec![
                 ConditionResult {
@@ -290,13 +382,18 @@ mod tests {
         assert_eq!(scatter.matches("<circle").count(), 4 + 2, "{scatter}");
         let bars = recall_per_condition_svg(&report()).unwrap();
         assert!(bars.contains("clean") && bars.contains("B15/D80"));
+        // One curve (a legend entry) and one operating-point dot per method
+        // of the clean condition.
+        let pr = precision_recall_svg(&report()).unwrap();
+        assert!(pr.contains("SCAL") && pr.contains("ORB-BoW"));
+        assert_eq!(pr.matches("<circle").count(), 2, "{pr}");
     }
 
     #[test]
     fn png_is_written_with_the_chart_size() {
         let dir = tempfile::tempdir().unwrap();
         let written = write_all(&report(), dir.path()).unwrap();
-        assert_eq!(written.len(), 2);
+        assert_eq!(written.len(), 3);
         let png = image::open(dir.path().join("accuracy_latency.png")).unwrap();
         assert_eq!((png.width(), png.height()), (800, 520));
         // Not blank: the chart draws more than the white background.

@@ -19,7 +19,7 @@
 //! A query's latency is the insert (without the server's decoding) plus the
 //! query call, both timed at this client.
 
-use std::collections::{BTreeMap, BTreeSet};
+use std::collections::BTreeSet;
 use std::time::{Duration, Instant};
 
 use anyhow::{bail, Context};
@@ -27,7 +27,7 @@ use tonic::transport::Channel;
 
 use super::dataset::Dataset;
 use super::degrade::Degradation;
-use super::run::{image_bytes, progress, Samples};
+use super::run::{image_bytes, progress, Samples, Selection};
 use super::truth::Kind;
 use crate::proto;
 use crate::proto::place_recognition_client::PlaceRecognitionClient;
@@ -49,6 +49,7 @@ fn layers_proto(layers: Layers) -> proto::Layers {
         l if l == Layers::SCAL => proto::Layers::Scal,
         l if l == Layers::SCAL_OSRL => proto::Layers::ScalOsrl,
         l if l == Layers::SCAL_OGTL => proto::Layers::ScalOgtl,
+        l if l == Layers::FULL_SUPPORT_ONLY => proto::Layers::FullSupportOnly,
         _ => proto::Layers::Full,
     }
 }
@@ -191,9 +192,9 @@ impl Remote {
         dataset: &Dataset,
         degradation: Option<&Degradation>,
         methods: &[(&'static str, Layers)],
-        selected: &[usize],
-        timed: &[usize],
+        selection: &Selection,
     ) -> anyhow::Result<Vec<Samples>> {
+        let selected = selection.all();
         let condition = super::degrade::condition_name(degradation);
         let (robot, session, gap, frames): (String, String, u64, Vec<usize>) = match dataset.kind {
             Kind::Loop => {
@@ -227,8 +228,7 @@ impl Remote {
         };
         self.sessions.push((robot.clone(), session.clone()));
         let mut samples: Vec<Samples> = methods.iter().map(|_| Samples::default()).collect();
-        let position: BTreeMap<usize, usize> =
-            selected.iter().enumerate().map(|(n, &q)| (q, n)).collect();
+        let asked: BTreeSet<usize> = selected.iter().copied().collect();
         let bar = progress(frames.len(), &format!("{condition} (server)"));
         for index in frames {
             let image = image_bytes(&dataset.queries[index], degradation)?;
@@ -236,20 +236,18 @@ impl Remote {
                 .insert(keyframe(&robot, &session, index, image))
                 .await?;
             bar.inc(1);
-            let Some(&n) = position.get(&index) else {
+            if !asked.contains(&index) {
                 continue;
-            };
+            }
             for (m, &(_, layers)) in methods.iter().enumerate() {
                 let (took, reply) = self.query(&robot, &session, index, gap, layers).await?;
-                let top: Vec<usize> = reply
+                let top: Vec<(usize, f32)> = reply
                     .candidates
                     .iter()
-                    .map(|c| c.keyframe_id as usize)
+                    .map(|c| (c.keyframe_id as usize, c.score))
                     .collect();
-                samples[m]
-                    .answers
-                    .push((top, dataset.matches[&index].clone()));
-                if timed.contains(&n) {
+                samples[m].record(&top, dataset.matches.get(&index));
+                if selection.is_timed(index) {
                     samples[m].latencies.push(insert_took + took);
                     for t in insert_stages.iter().chain(reply.timings.iter()) {
                         if t.stage != "decode" {

@@ -5,9 +5,13 @@
 //! into a real in-memory index, and each selected query is ranked by
 //! HuMem-VPR with the layers of each configuration (ablations are
 //! configurations, not code). Queries are the eligible ones, at most
-//! `--max-queries` at evenly spaced indices. Latency is measured on 30
-//! evenly spaced queries after 10 warm-ups: perception without decoding,
-//! plus ranking; building the database is not counted.
+//! `--max-queries` at evenly spaced indices; queries without a valid match
+//! (a loop's first pass, a query nothing matches) are chosen the same way
+//! and scored for precision only, since that is where false alarms come
+//! from. Precision is taken at the configured operating point (threshold
+//! and `max_candidates` of `[vpr]`, see [`super::precision`]). Latency is
+//! measured on 30 evenly spaced queries after 10 warm-ups: perception
+//! without decoding, plus ranking; building the database is not counted.
 
 use std::collections::BTreeMap;
 use std::io::{Cursor, IsTerminal};
@@ -21,6 +25,7 @@ use super::annotations::{self, Catalog};
 use super::dataset::Dataset;
 use super::degrade::Degradation;
 use super::metrics::{self, LatencyStats, Retrieval};
+use super::precision::{self, OperatingPoint, Precision, ScoredQuery};
 use super::truth::{Kind, PoseRule};
 use crate::config::Config;
 use crate::keyframe::{Features, KeyframeKey, Pose, SemanticKeyframe};
@@ -34,10 +39,11 @@ pub struct EvalArgs {
     /// Data set folder (pairs: query/ + reference/; loop: sequence/).
     #[arg(long)]
     pub dataset: PathBuf,
-    /// Layers to score with: scal, scal+osrl, scal+ogtl or full.
+    /// Layers to score with: scal, scal+osrl, scal+ogtl, full-no-c (the
+    /// paper's full method: evidence for only) or full.
     #[arg(long, default_value = "full")]
     pub layers: String,
-    /// All four layer configurations in one table.
+    /// All five layer configurations in one table.
     #[arg(long)]
     pub ablation: bool,
     /// Degradations of the query images, e.g. B15/D80 (repeatable); the
@@ -94,8 +100,11 @@ fn parse_layers(name: &str) -> anyhow::Result<(&'static str, Layers)> {
         "scal" => ("SCAL", Layers::SCAL),
         "scal+osrl" => ("SCAL+OSRL", Layers::SCAL_OSRL),
         "scal+ogtl" => ("SCAL+OGTL", Layers::SCAL_OGTL),
+        "full-no-c" => ("Full (no C)", Layers::FULL_SUPPORT_ONLY),
         "full" => ("Full", Layers::FULL),
-        other => anyhow::bail!("--layers {other:?}: use scal, scal+osrl, scal+ogtl or full"),
+        other => {
+            anyhow::bail!("--layers {other:?}: use scal, scal+osrl, scal+ogtl, full-no-c or full")
+        }
     })
 }
 
@@ -108,6 +117,8 @@ pub struct MethodResult {
     pub latency: LatencyStats,
     /// Mean milliseconds per stage over the timed queries.
     pub stages_ms: BTreeMap<String, f64>,
+    /// At the operating point, over the queries with and without a match.
+    pub precision: Precision,
 }
 
 /// All methods under one condition.
@@ -126,6 +137,13 @@ pub struct EvalReport {
     pub references: usize,
     pub queries: usize,
     pub min_frame_gap: Option<usize>,
+    /// Queries without a valid match scored for precision.
+    pub queries_without_match: usize,
+    /// The operating point: threshold on the score (calibrated unless
+    /// `vpr.calibration = "raw"`) and most candidates returned.
+    pub threshold: f32,
+    pub calibration: String,
+    pub max_candidates: usize,
     /// Where the objects came from: `models` or `annotations`.
     pub objects: ObjectSource,
     pub conditions: Vec<ConditionResult>,
@@ -134,8 +152,10 @@ pub struct EvalReport {
 /// What one method gave under one condition, before it is summarised.
 #[derive(Debug, Default)]
 pub struct Samples {
-    /// Per query: the ranked reference indices and the valid matches.
+    /// Per query with a match: the ranked reference indices and the valid matches.
     pub answers: Vec<(Vec<usize>, Vec<usize>)>,
+    /// Per query, with a match or not: the ranked scores and valid flags.
+    pub scored: Vec<ScoredQuery>,
     /// Latency of each timed query.
     pub latencies: Vec<Duration>,
     /// Milliseconds per stage, summed over the timed queries.
@@ -143,10 +163,25 @@ pub struct Samples {
 }
 
 impl Samples {
-    fn summarise(self, method: &str) -> MethodResult {
+    /// Records one query's ranking: `(reference index, score)` best first,
+    /// and its valid matches (`None`: the query has none).
+    pub fn record(&mut self, ranked: &[(usize, f32)], matches: Option<&Vec<usize>>) {
+        let valid = |r: &usize| matches.is_some_and(|m| m.contains(r));
+        if let Some(m) = matches {
+            self.answers
+                .push((ranked.iter().map(|&(r, _)| r).collect(), m.clone()));
+        }
+        self.scored.push(ScoredQuery {
+            ranked: ranked.iter().map(|(r, s)| (*s, valid(r))).collect(),
+            has_match: matches.is_some_and(|m| !m.is_empty()),
+        });
+    }
+
+    pub fn summarise(self, method: &str, point: OperatingPoint) -> MethodResult {
         let count = self.latencies.len().max(1) as f64;
         MethodResult {
             method: method.to_string(),
+            precision: precision::precision(&self.scored, point),
             retrieval: metrics::retrieval(&self.answers),
             latency: metrics::latency(&self.latencies),
             stages_ms: self
@@ -296,8 +331,7 @@ impl LocalDatabase {
         dataset: &Dataset,
         degradation: Option<&Degradation>,
         methods: &[(&'static str, Layers)],
-        selected: &[usize],
-        timed: &[usize],
+        selection: &Selection,
     ) -> anyhow::Result<Vec<Samples>> {
         let condition = super::degrade::condition_name(degradation);
         // Query features: for a clean loop, the references themselves.
@@ -319,7 +353,7 @@ impl LocalDatabase {
         let mut out = Vec::new();
         for &(_, layers) in methods {
             let mut samples = Samples::default();
-            for (n, &q) in selected.iter().enumerate() {
+            for q in selection.all() {
                 let history: Vec<&Features> = (0..3)
                     .filter_map(|j| q.checked_sub(j))
                     .map(|i| &queries[i].features)
@@ -339,9 +373,12 @@ impl LocalDatabase {
                 );
                 let rank_took = started.elapsed();
                 // The whole SCAL top K, so MRR sees ranks beyond 5.
-                let top: Vec<usize> = ranked.iter().map(|r| self.reference_of[r.row]).collect();
-                samples.answers.push((top, dataset.matches[&q].clone()));
-                if timed.contains(&n) {
+                let top: Vec<(usize, f32)> = ranked
+                    .iter()
+                    .map(|r| (self.reference_of[r.row], r.score))
+                    .collect();
+                samples.record(&top, dataset.matches.get(&q));
+                if selection.is_timed(q) {
                     samples.latencies.push(queries[q].took + rank_took);
                     for (stage, took) in queries[q].stages.iter().chain(times.stages().iter()) {
                         if *stage != "decode" {
@@ -357,6 +394,62 @@ impl LocalDatabase {
     }
 }
 
+/// The queries of one run.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Selection {
+    /// Queries with a valid match (recall and precision), sorted.
+    pub with_match: Vec<usize>,
+    /// Queries without one (precision only), sorted.
+    pub without_match: Vec<usize>,
+    /// Queries of `with_match` whose latency is measured.
+    pub timed: Vec<usize>,
+}
+
+impl Selection {
+    /// At most `at_most` evenly spaced queries of each kind (all with
+    /// `None`); the latency sample is taken from those with a match. A loop
+    /// query needs at least one eligible reference (index `>= gap`).
+    pub fn new(dataset: &Dataset, at_most: Option<usize>) -> Selection {
+        let pick = |v: &[usize]| match at_most {
+            Some(k) => metrics::evenly_spaced(v, k),
+            None => v.to_vec(),
+        };
+        let with: Vec<usize> = dataset.matches.keys().copied().collect();
+        let first = match dataset.kind {
+            Kind::Loop => dataset.min_frame_gap,
+            Kind::Pairs => 0,
+        };
+        let without: Vec<usize> = (first..dataset.queries.len())
+            .filter(|q| !dataset.matches.contains_key(q))
+            .collect();
+        let with_match = pick(&with);
+        let (_, timed_positions) = metrics::latency_sample_indices(with_match.len(), 10, 30);
+        let timed = timed_positions.iter().map(|&n| with_match[n]).collect();
+        Selection {
+            with_match,
+            without_match: pick(&without),
+            timed,
+        }
+    }
+
+    /// Every selected query, sorted.
+    pub fn all(&self) -> Vec<usize> {
+        let mut all: Vec<usize> = self
+            .with_match
+            .iter()
+            .chain(&self.without_match)
+            .copied()
+            .collect();
+        all.sort_unstable();
+        all
+    }
+
+    /// Whether query `q` is in the latency sample.
+    pub fn is_timed(&self, q: usize) -> bool {
+        self.timed.contains(&q)
+    }
+}
+
 /// `humem eval`.
 pub async fn run(config: Config, args: EvalArgs) -> anyhow::Result<()> {
     let rule = PoseRule {
@@ -366,28 +459,27 @@ pub async fn run(config: Config, args: EvalArgs) -> anyhow::Result<()> {
     };
     let dataset = Dataset::open(&args.dataset, &rule, args.min_gap)?;
     let methods: Vec<(&'static str, Layers)> = if args.ablation {
-        ["scal", "scal+osrl", "scal+ogtl", "full"]
+        ["scal", "scal+osrl", "scal+ogtl", "full-no-c", "full"]
             .iter()
             .map(|l| parse_layers(l))
             .collect::<anyhow::Result<_>>()?
     } else {
         vec![parse_layers(&args.layers)?]
     };
-    let eligible: Vec<usize> = dataset.matches.keys().copied().collect();
-    let selected = if args.all_queries {
-        eligible.clone()
-    } else {
-        metrics::evenly_spaced(&eligible, args.max_queries)
+    let selection = Selection::new(&dataset, (!args.all_queries).then_some(args.max_queries));
+    let point = OperatingPoint {
+        threshold: config.vpr.threshold(),
+        max_candidates: config.vpr.max_candidates,
     };
-    // The first 10 of 40 evenly spaced queries warm up; the other 30 are timed.
-    let (_, timed) = metrics::latency_sample_indices(selected.len(), 10, 30);
     eprintln!(
-        "humem eval: {} ({:?}), {} references, {} of {} eligible queries, ground truth from {}{}",
+        "humem eval: {} ({:?}), {} references, {} of {} queries with a match and {} of {} without, ground truth from {}{}",
         dataset.name,
         dataset.kind,
         dataset.references.len(),
-        selected.len(),
-        eligible.len(),
+        selection.with_match.len(),
+        dataset.matches.len(),
+        selection.without_match.len(),
+        Selection::new(&dataset, None).without_match.len(),
         dataset.truth_source,
         args.server
             .as_deref()
@@ -434,7 +526,11 @@ pub async fn run(config: Config, args: EvalArgs) -> anyhow::Result<()> {
         kind: format!("{:?}", dataset.kind).to_lowercase(),
         truth: dataset.truth_source.clone(),
         references: dataset.references.len(),
-        queries: selected.len(),
+        queries: selection.with_match.len(),
+        queries_without_match: selection.without_match.len(),
+        threshold: point.threshold,
+        calibration: format!("{:?}", config.vpr.calibration).to_lowercase(),
+        max_candidates: point.max_candidates,
         min_frame_gap: (dataset.kind == Kind::Loop).then_some(dataset.min_frame_gap),
         objects: args.objects,
         conditions: Vec::new(),
@@ -451,26 +547,32 @@ pub async fn run(config: Config, args: EvalArgs) -> anyhow::Result<()> {
                         &dataset,
                         degradation,
                         &methods,
-                        &selected,
-                        &timed,
+                        &selection,
                     )
                     .await?
             }
             Backend::Remote(remote) => {
                 remote
-                    .condition(&dataset, degradation, &methods, &selected, &timed)
+                    .condition(&dataset, degradation, &methods, &selection)
                     .await?
             }
         };
         let mut results: Vec<MethodResult> = methods
             .iter()
             .zip(samples)
-            .map(|(&(method, _), s)| s.summarise(method))
+            .map(|(&(method, _), s)| s.summarise(method, point))
             .collect();
         if let Some(baseline) = &baseline {
             let samples =
-                baseline.condition(&dataset, degradation, &selected, &timed, config.vpr.top_k)?;
-            results.push(samples.summarise(super::baseline::METHOD));
+                baseline.condition(&dataset, degradation, &selection, config.vpr.top_k)?;
+            // Bag-of-words scores have no calibrated threshold: it answers
+            // every query, and its threshold-free figures (recall at 100 %
+            // precision, the curve) are the comparable ones.
+            let always = OperatingPoint {
+                threshold: f32::NEG_INFINITY,
+                ..point
+            };
+            results.push(samples.summarise(super::baseline::METHOD, always));
         }
         report
             .conditions
@@ -523,7 +625,40 @@ fn rows(report: &EvalReport) -> Vec<String> {
     rows
 }
 
+fn precision_rows(report: &EvalReport) -> Vec<String> {
+    let mut rows = Vec::new();
+    for c in &report.conditions {
+        for r in &c.results {
+            let p = &r.precision;
+            rows.push(format!(
+                "| {} | {} | {} | {} | {} | {} | {} ({:.1} %) | {:.3} | {:.3} | {:.3} |",
+                c.condition,
+                r.method,
+                p.queries,
+                p.queries - p.with_match,
+                p.answered,
+                p.false_top,
+                p.false_no_match,
+                p.false_alarm_rate * 100.0,
+                p.candidate_precision,
+                p.recall_at_threshold,
+                p.recall_at_full_precision,
+            ));
+        }
+    }
+    rows
+}
+
 const HEADER: &str = "| condition | method | R@1 | R@5 | MRR | mean ms | median ms | p95 ms |\n| --- | --- | --- | --- | --- | --- | --- | --- |";
+
+const PRECISION_HEADER: &str = "| condition | method | queries | without match | answered | false top-1 | false alarms (no match) | candidate precision | recall at threshold | recall at 100 % precision |\n| --- | --- | --- | --- | --- | --- | --- | --- | --- | --- |";
+
+fn operating_point(report: &EvalReport) -> String {
+    format!(
+        "operating point: {} calibration, threshold {:.2}, at most {} candidates; {} queries without a match scored for precision (ORB-BoW answers every query)",
+        report.calibration, report.threshold, report.max_candidates, report.queries_without_match
+    )
+}
 
 fn print_table(report: &EvalReport) {
     println!(
@@ -532,6 +667,11 @@ fn print_table(report: &EvalReport) {
     );
     println!("{HEADER}");
     for row in rows(report) {
+        println!("{row}");
+    }
+    println!("\n{}", operating_point(report));
+    println!("{PRECISION_HEADER}");
+    for row in precision_rows(report) {
         println!("{row}");
     }
 }
@@ -553,8 +693,16 @@ fn markdown(report: &EvalReport) -> String {
         md.push_str(&row);
         md.push('\n');
     }
+    md.push_str(&format!(
+        "\nPrecision at the {}.\n\n{PRECISION_HEADER}\n",
+        operating_point(report)
+    ));
+    for row in precision_rows(report) {
+        md.push_str(&row);
+        md.push('\n');
+    }
     md.push_str(
-        "\n![Recall@1 against median latency](accuracy_latency.png)\n\n![Recall per condition](recall_per_condition.png)\n",
+        "\n![Recall@1 against median latency](accuracy_latency.png)\n\n![Recall per condition](recall_per_condition.png)\n\n![Precision against recall](precision_recall.png)\n",
     );
     md
 }

@@ -13,8 +13,8 @@ use crate::api::validate::{InvalidField, Observation, QuerySpec};
 use crate::keyframe::{Features, KeyframeKey, Pose};
 use crate::store::Index;
 use crate::vpr::{
-    self, CandidateMeta, KeyframeMemory, ObjectMatch, QueryContext, QueryObservation, ScalHit,
-    Scope, TextMatch, VprParams,
+    self, CandidateMeta, Contradiction, KeyframeMemory, MissingObject, NullModel, ObjectMatch,
+    QueryContext, QueryObservation, ScalHit, Scope, TextConflict, TextMatch, VprParams,
 };
 
 /// Why a query cannot be answered.
@@ -41,6 +41,21 @@ pub struct TextPair {
     pub candidate_text: String,
 }
 
+/// A pair of disagreeing distinctive texts, with the strings.
+#[derive(Debug, Clone)]
+pub struct ConflictPair {
+    pub conflict: TextConflict,
+    pub query_text: String,
+    pub candidate_text: String,
+}
+
+/// A missing distinctive object, with its class.
+#[derive(Debug, Clone)]
+pub struct MissingPair {
+    pub missing: MissingObject,
+    pub class_name: String,
+}
+
 /// A selected candidate and why.
 #[derive(Debug, Clone)]
 pub struct Candidate {
@@ -49,8 +64,13 @@ pub struct Candidate {
     pub timestamp: f64,
     pub map_id: u64,
     pub pose: Pose,
-    /// Λ.
+    /// The score the threshold applied to (see `vpr::RankedCandidate`).
     pub score: f32,
+    /// The paper's Λ.
+    pub raw_score: f32,
+    /// `c_s` (calibrated) or `S_s` (raw calibration).
+    pub scene_confidence: f32,
+    pub null: NullModel,
     pub scene: ScalHit,
     pub object_score: f32,
     pub text_score: f32,
@@ -58,6 +78,10 @@ pub struct Candidate {
     pub corroboration: f32,
     pub object_matches: Vec<ObjectPair>,
     pub text_matches: Vec<TextPair>,
+    /// `X_t`, `X_o` and `C` (the pairs are spelled out below).
+    pub contradiction: Contradiction,
+    pub text_conflicts: Vec<ConflictPair>,
+    pub missing_objects: Vec<MissingPair>,
 }
 
 /// The answer to a query.
@@ -70,6 +94,8 @@ pub struct QueryOutcome {
     pub used_predecessors: Vec<u64>,
     /// Time per stage.
     pub timings: Vec<(&'static str, Duration)>,
+    /// The threshold applied to the candidates' scores.
+    pub threshold: f32,
 }
 
 /// Runs a validated query against the index.
@@ -198,6 +224,36 @@ pub fn run(
         .map(|r| {
             let meta = index.meta(r.row);
             let cand_objects = index.objects(r.row);
+            let text_conflicts = r
+                .contradiction
+                .conflicts
+                .iter()
+                .map(|&conflict| ConflictPair {
+                    query_text: current.objects[conflict.query_object].texts[conflict.query_text]
+                        .text
+                        .clone(),
+                    candidate_text: cand_objects[conflict.candidate_object].texts
+                        [conflict.candidate_text]
+                        .text
+                        .clone(),
+                    conflict,
+                })
+                .collect();
+            let missing_objects = r
+                .contradiction
+                .missing
+                .iter()
+                .map(|&missing| MissingPair {
+                    class_name: if missing.in_query {
+                        &current.objects[missing.object]
+                    } else {
+                        &cand_objects[missing.object]
+                    }
+                    .class_name
+                    .clone(),
+                    missing,
+                })
+                .collect();
             Candidate {
                 key: meta.key.clone(),
                 frame_id: meta.frame_id,
@@ -205,6 +261,9 @@ pub fn run(
                 map_id: meta.map_id,
                 pose: meta.pose,
                 score: r.score,
+                raw_score: r.raw_score,
+                scene_confidence: r.scene_confidence,
+                null: r.null,
                 scene: r.scene,
                 object_score: r.objects.score,
                 text_score: r.text.score,
@@ -233,6 +292,9 @@ pub fn run(
                         matched: m,
                     })
                     .collect(),
+                contradiction: r.contradiction,
+                text_conflicts,
+                missing_objects,
             }
         })
         .collect();
@@ -244,5 +306,6 @@ pub fn run(
             .map(|&row| index.meta(row).key.keyframe_id)
             .collect(),
         timings: timings.stages().to_vec(),
+        threshold: spec.threshold,
     })
 }

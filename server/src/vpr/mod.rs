@@ -8,6 +8,10 @@
 //!   context (the scene-primary hypothesis), over the whole eligible store;
 //! - [`osrl`](mod@osrl): object layout, per-class Hungarian assignment, on the top K;
 //! - [`ogtl`](mod@ogtl): OCR text grounded on spatially compatible objects, on the top K;
+//! - [`contradiction`]: evidence against a candidate, `C` (disagreeing
+//!   distinctive text, missing distinctive objects), on the top K;
+//! - [`calibration`]: the scene score calibrated against the query's null
+//!   distribution, so one threshold serves any descriptor model;
 //! - [`fusion`]: bounded corroboration `B` and the fused score `Λ`;
 //! - [`rank`](mod@rank): the orchestration of one query and the final selection.
 //!
@@ -18,6 +22,8 @@
 //! distinctiveness) and `assignment` (the Hungarian solver adapter).
 
 mod assignment;
+pub mod calibration;
+pub mod contradiction;
 pub mod eligibility;
 pub mod fusion;
 pub mod matrix;
@@ -32,13 +38,15 @@ pub mod text;
 #[cfg(test)]
 mod testing;
 
+pub use calibration::NullModel;
+pub use contradiction::{Contradiction, MissingObject, TextConflict};
 pub use eligibility::{is_eligible, CandidateMeta, MapRef, QueryContext, Scope};
-pub use fusion::{corroboration, fuse};
+pub use fusion::{corroboration, fuse, fuse_with_contradiction};
 pub use matrix::{dot, DescriptorMatrix};
 pub use memory::{KeyframeMemory, VecMemory};
 pub use ogtl::{ogtl, text_profile, text_profile_in, OgtlResult, TextMatch, TextProfile};
 pub use osrl::{object_affinity, osrl, spatial_kernel, ObjectMatch, OsrlResult};
-pub use params::{Layers, TemporalMode, VprParams};
+pub use params::{Calibration, Layers, TemporalMode, VprParams};
 pub use rank::{rank, rank_timed, select, QueryObservation, RankedCandidate, StageTimes};
 pub use scal::{cosine, modulated, scal_scores, scene_compatibility, ScalHit, ScalQuery};
 pub use text::{distinctiveness, string_similarity};

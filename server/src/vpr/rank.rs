@@ -1,5 +1,6 @@
 //! One query, end to end: SCAL over the eligible store, the corroborating
-//! layers on its top K, fusion, ordering and selection.
+//! layers and the evidence against on its top K, calibration, fusion,
+//! ordering and selection.
 //!
 //! This is the only place that knows the order of the layers; each layer is
 //! a pure function of its own inputs. Layers switched off by [`Layers`]
@@ -11,12 +12,14 @@ use std::cmp::Ordering;
 use std::time::{Duration, Instant};
 
 use crate::keyframe::Features;
-use crate::vpr::fusion::{corroboration, fuse};
+use crate::vpr::calibration::NullModel;
+use crate::vpr::contradiction::{contradiction, Contradiction};
+use crate::vpr::fusion::{corroboration, fuse, fuse_with_contradiction};
 use crate::vpr::memory::KeyframeMemory;
 use crate::vpr::ogtl::{ogtl, text_profile_in, OgtlResult};
 use crate::vpr::osrl::{osrl, OsrlResult};
-use crate::vpr::params::{Layers, VprParams};
-use crate::vpr::scal::{scal_scores, ScalHit, ScalQuery};
+use crate::vpr::params::{Calibration, Layers, VprParams};
+use crate::vpr::scal::{scal_scan, ScalHit, ScalQuery};
 
 /// The query: its current observation and recent predecessors.
 #[derive(Debug, Clone, PartialEq)]
@@ -37,9 +40,19 @@ pub struct RankedCandidate {
     pub objects: OsrlResult,
     /// OGTL evidence (`S_t`, `E_t`, matched strings); empty when off.
     pub text: OgtlResult,
+    /// Evidence against (`X_t`, `X_o`, `C`); empty when the layer is off.
+    pub contradiction: Contradiction,
     /// `B`.
     pub corroboration: f32,
-    /// `Λ`.
+    /// The query's null distribution (the same for every candidate).
+    pub null: NullModel,
+    /// The scene score the fusion starts from: `c_s` calibrated against
+    /// the null (`calibration = "null"`), or `S_s` itself (`raw`).
+    pub scene_confidence: f32,
+    /// The paper's `Λ = S_s + (1 − S_s) B`, whatever the calibration.
+    pub raw_score: f32,
+    /// The score the threshold applies to and candidates are ordered by:
+    /// `scene_confidence (1 − C) + (1 − scene_confidence) B`.
     pub score: f32,
 }
 
@@ -101,13 +114,12 @@ pub fn rank_timed<M: KeyframeMemory + ?Sized>(
         history: query.history.clone(),
     };
     let clock = Instant::now();
-    let hits = scal_scores(params, &scal_query, memory, eligible);
+    let (hits, null) = scal_scan(params, &scal_query, memory, eligible);
     times.scal = clock.elapsed();
     let query_objects = &current.objects;
     // The query side of OGTL is computed once, not once per candidate.
     let clock = Instant::now();
-    let query_profile = layers
-        .ogtl
+    let query_profile = (layers.ogtl || layers.contradiction)
         .then(|| text_profile_in(query_objects, memory, params));
     times.ogtl += clock.elapsed();
 
@@ -123,24 +135,41 @@ pub fn rank_timed<M: KeyframeMemory + ?Sized>(
             };
             times.osrl += clock.elapsed();
             let clock = Instant::now();
-            let text = match &query_profile {
-                Some(qp) => {
-                    let cp = text_profile_in(cand_objects, memory, params);
-                    ogtl(query_objects, qp, cand_objects, &cp, params)
+            let cand_profile = query_profile
+                .as_ref()
+                .map(|_| text_profile_in(cand_objects, memory, params));
+            let text = match (&query_profile, &cand_profile) {
+                (Some(qp), Some(cp)) if layers.ogtl => {
+                    ogtl(query_objects, qp, cand_objects, cp, params)
                 }
-                None => OgtlResult::default(),
+                _ => OgtlResult::default(),
+            };
+            let against = match (&query_profile, &cand_profile) {
+                (Some(qp), Some(cp)) if layers.contradiction => {
+                    contradiction(query_objects, qp, cand_objects, cp, params)
+                }
+                _ => Contradiction::default(),
             };
             times.ogtl += clock.elapsed();
             let clock = Instant::now();
             let b = corroboration(objects.score, text.score, text.evidence_weight, params);
-            let score = fuse(scene.score, b);
+            let scene_confidence = match params.calibration {
+                Calibration::Null => null.calibrate(scene.score, params),
+                Calibration::Raw => scene.score,
+            };
+            let score = fuse_with_contradiction(scene_confidence, b, against.score);
+            let raw_score = fuse(scene.score, b);
             times.fusion += clock.elapsed();
             RankedCandidate {
                 row: scene.row,
                 score,
+                raw_score,
+                scene_confidence,
+                null,
                 scene,
                 objects,
                 text,
+                contradiction: against,
                 corroboration: b,
             }
         })
@@ -183,11 +212,20 @@ mod tests {
         features(&[1.0, 0.0], &[], vec![sign])
     }
 
+    /// The paper's raw rule, so that the scores are the hand-computed `Λ`
+    /// (a two-row store is too small for a calibrated null).
+    fn raw() -> VprParams {
+        VprParams {
+            calibration: Calibration::Raw,
+            ..VprParams::default()
+        }
+    }
+
     fn run(layers: Layers) -> Vec<RankedCandidate> {
         let m = store();
         let q = query();
         rank(
-            &VprParams::default(),
+            &raw(),
             layers,
             &QueryObservation { history: vec![&q] },
             &m,
@@ -202,22 +240,34 @@ mod tests {
         // 0.666667 (store < 10 keyframes) → E_t = 0.666667.
         // B = 0.15 · 1 + 0.25 · 0.666667 · 1 = 0.316667;
         // Λ = 0.6 + 0.4 · 0.316667 = 0.726667.
-        // Row 1: S_s = 0.8, B = 0 → Λ = 0.8, ranked first.
+        // Row 1: S_s = 0.8, B = 0, but the query's distinctive sign (D
+        // 0.666667, area 0.1) has no counterpart there: X_o = 1,
+        // C = g_xo · 1 = 0.5, Λ = 0.8 · (1 − 0.5) = 0.4; the paper's Λ = 0.8.
         let r = run(Layers::FULL);
         assert_eq!(r.len(), 2);
-        assert_eq!(r[0].row, 1);
-        assert!(close(r[0].score, 0.8));
-        assert_eq!(r[1].row, 0);
-        assert!(close(r[1].scene.score, 0.6));
-        assert!(close(r[1].objects.score, 1.0));
-        assert!(close(r[1].text.score, 1.0));
-        assert!(close(r[1].text.evidence_weight, 0.666667));
-        assert!(close(r[1].corroboration, 0.316667));
-        assert!(close(r[1].score, 0.726667));
-        assert_eq!(r[1].objects.matches.len(), 1);
-        assert_eq!(r[1].text.matches.len(), 1);
-        // Both pass τ_s = 0.7.
-        assert_eq!(select(r, 0.7, 5).len(), 2);
+        assert_eq!(r[0].row, 0);
+        assert!(close(r[0].scene.score, 0.6));
+        assert!(close(r[0].objects.score, 1.0));
+        assert!(close(r[0].text.score, 1.0));
+        assert!(close(r[0].text.evidence_weight, 0.666667));
+        assert!(close(r[0].corroboration, 0.316667));
+        assert!(close(r[0].score, 0.726667));
+        assert_eq!(r[0].contradiction, Contradiction::default());
+        assert_eq!(r[0].objects.matches.len(), 1);
+        assert_eq!(r[0].text.matches.len(), 1);
+        assert_eq!(r[1].row, 1);
+        assert_eq!(r[1].contradiction.absence, 1.0);
+        assert!(close(r[1].contradiction.score, 0.5));
+        assert!(close(r[1].score, 0.4));
+        assert!(close(r[1].raw_score, 0.8));
+        // Only row 0 passes τ_s = 0.7.
+        assert_eq!(select(r, 0.7, 5).len(), 1);
+        // The paper's full method: evidence for only, row 1 first at 0.8.
+        let paper = run(Layers::FULL_SUPPORT_ONLY);
+        assert_eq!(paper[0].row, 1);
+        assert!(close(paper[0].score, 0.8));
+        assert!(close(paper[1].score, 0.726667));
+        assert_eq!(select(paper, 0.7, 5).len(), 2);
     }
 
     #[test]
@@ -238,6 +288,86 @@ mod tests {
         let row0 = r.iter().find(|c| c.row == 0).unwrap();
         assert!(close(row0.score, 0.666667));
         assert_eq!(row0.objects, OsrlResult::default());
+    }
+
+    /// One stored keyframe (s_e = 0.6) with a sign reading "AAAA 1111"; the
+    /// query's sign at the same place reads `text`.
+    fn look_alike(text: &str, layers: Layers) -> RankedCandidate {
+        let mut m = VecMemory::new(2);
+        let stored = with_texts(object("sign", 1.0, 0.5, 0.5, 0.1), &[("AAAA 1111", 1.0)]);
+        m.push(features(&[0.6, 0.8], &[], vec![stored]), None);
+        let q = features(
+            &[1.0, 0.0],
+            &[],
+            vec![with_texts(
+                object("sign", 1.0, 0.5, 0.5, 0.1),
+                &[(text, 1.0)],
+            )],
+        );
+        let query = QueryObservation { history: vec![&q] };
+        rank(&raw(), layers, &query, &m, &|_| true).remove(0)
+    }
+
+    #[test]
+    fn contradicting_text_lowers_the_score_by_hand() {
+        // Matching text: S_o = 1, S_t = 1, E_t = 0.833333 (D of "AAAA 1111");
+        // B = 0.15 + 0.25 · 0.833333 = 0.358333; C = 0;
+        // Λ = 0.6 + 0.4 · 0.358333 = 0.743333.
+        let same = look_alike("AAAA 1111", Layers::FULL);
+        assert!(close(same.corroboration, 0.358333));
+        assert_eq!(same.contradiction.score, 0.0);
+        assert!(close(same.score, 0.743333));
+        assert!(close(same.raw_score, 0.743333));
+        // Contradicting text "BBBB 2222": S_str = 0.111111 → S_t = 0.111111,
+        // B = 0.15 + 0.25 · 0.833333 · 0.111111 = 0.173148; the paper's
+        // Λ = 0.6 + 0.4 · 0.173148 = 0.669259 (it only fails to rise).
+        // X_t = 0.833333 · 0.777778 = 0.648148 = C;
+        // Λ = 0.6 · (1 − 0.648148) + 0.4 · 0.173148 = 0.280370.
+        let other = look_alike("BBBB 2222", Layers::FULL);
+        assert!(close(other.corroboration, 0.173148));
+        assert!(close(other.contradiction.text, 0.648148));
+        assert!(close(other.score, 0.280370), "{}", other.score);
+        assert!(close(other.raw_score, 0.669259));
+        assert!(other.score < same.score);
+        // The ablation without the evidence against is the paper's fusion.
+        let paper = look_alike("BBBB 2222", Layers::FULL_SUPPORT_ONLY);
+        assert_eq!(paper.contradiction, Contradiction::default());
+        assert!(close(paper.score, 0.669259));
+    }
+
+    #[test]
+    fn calibrated_scores_by_hand() {
+        // Eleven rows with s_e = 0.50, 0.52, ..., 0.70 and one at 0.94:
+        // twelve eligible, median (upper middle, index 6) 0.62.
+        // c_s of the best = (0.94 − 0.62) / 0.38 = 0.842105.
+        let mut m = VecMemory::new(2);
+        let mut push = |c: f32| {
+            m.push(features(&[c, (1.0 - c * c).sqrt()], &[], vec![]), None);
+        };
+        for i in 0..11 {
+            push(0.50 + 0.02 * i as f32);
+        }
+        push(0.94);
+        let q = features(&[1.0, 0.0], &[], vec![]);
+        let query = QueryObservation { history: vec![&q] };
+        let r = rank(&VprParams::default(), Layers::FULL, &query, &m, &|_| true);
+        assert_eq!(r[0].row, 11);
+        assert_eq!(r[0].null.samples, 12);
+        assert!(close(r[0].null.location, 0.62));
+        assert!(close(r[0].scene_confidence, 0.842105));
+        assert!(close(r[0].score, 0.842105));
+        assert!(close(r[0].raw_score, 0.94));
+        // Rows at or below the median score 0.
+        assert!(r
+            .iter()
+            .filter(|c| c.scene.score <= 0.62 + 1e-6)
+            .all(|c| c.score == 0.0));
+        // Fewer eligible rows than null_min_samples (10): nothing stands out.
+        let few = rank(&VprParams::default(), Layers::FULL, &query, &m, &|row| {
+            row >= 3
+        });
+        assert_eq!(few[0].null.samples, 9);
+        assert!(few.iter().all(|c| c.score == 0.0));
     }
 
     #[test]
@@ -269,7 +399,11 @@ mod tests {
             },
             objects: OsrlResult::default(),
             text: OgtlResult::default(),
+            contradiction: Contradiction::default(),
             corroboration: 0.0,
+            null: NullModel::default(),
+            scene_confidence: s_s,
+            raw_score: score,
             score,
         }
     }
@@ -333,7 +467,10 @@ mod tests {
             prop_assert!(full.len() <= k);
             for c in &full {
                 prop_assert!((0.0..=1.0).contains(&c.score));
-                prop_assert!(c.score >= c.scene.score);
+                prop_assert!(c.raw_score >= c.scene.score);
+                prop_assert!((0.0..=1.0).contains(&c.scene_confidence));
+                prop_assert!(c.score >= c.scene_confidence * (1.0 - c.contradiction.score) - 1e-6);
+                prop_assert!((0.0..=1.0).contains(&c.contradiction.score));
                 prop_assert!((0.0..=1.0).contains(&c.corroboration));
                 prop_assert!((0.0..=1.0).contains(&c.objects.score));
                 prop_assert!((0.0..=1.0).contains(&c.text.score));
@@ -341,10 +478,12 @@ mod tests {
             }
             prop_assert!(full.windows(2).all(|w| w[0].score >= w[1].score));
 
-            // SCAL only: Λ = S_s exactly, same candidates as SCAL's top K.
+            // SCAL only: the score is the (calibrated) scene score exactly,
+            // the paper's Λ is S_s, and the candidates are SCAL's top K.
             let scal = rank(&params, Layers::SCAL, &query, &m, &|_| true);
             for c in &scal {
-                prop_assert_eq!(c.score, c.scene.score);
+                prop_assert_eq!(c.score, c.scene_confidence);
+                prop_assert_eq!(c.raw_score, c.scene.score);
             }
             let mut a: Vec<usize> = full.iter().map(|c| c.row).collect();
             let mut b: Vec<usize> = scal.iter().map(|c| c.row).collect();

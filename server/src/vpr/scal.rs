@@ -15,6 +15,7 @@
 use std::cmp::Ordering;
 
 use crate::keyframe::{Features, SceneClass};
+use crate::vpr::calibration::NullModel;
 use crate::vpr::clip01;
 use crate::vpr::matrix::{dot, multi_dot, DescriptorMatrix};
 use crate::vpr::memory::KeyframeMemory;
@@ -202,8 +203,19 @@ pub fn scal_scores<M: KeyframeMemory + ?Sized>(
     memory: &M,
     eligible: &dyn Fn(usize) -> bool,
 ) -> Vec<ScalHit> {
+    scal_scan(params, query, memory, eligible).0
+}
+
+/// [`scal_scores`], with the query's null distribution estimated from the
+/// `S_s` of every eligible row in the same pass (see [`NullModel`]).
+pub fn scal_scan<M: KeyframeMemory + ?Sized>(
+    params: &VprParams,
+    query: &ScalQuery,
+    memory: &M,
+    eligible: &dyn Fn(usize) -> bool,
+) -> (Vec<ScalHit>, NullModel) {
     if query.history.is_empty() {
-        return Vec::new();
+        return (Vec::new(), NullModel::default());
     }
     let dots = history_dots(&query.history, memory.descriptors());
     let scenes: Vec<SceneProfile> = query
@@ -216,8 +228,9 @@ pub fn scal_scores<M: KeyframeMemory + ?Sized>(
         .filter(|&row| eligible(row))
         .map(|row| scal_hit(params, memory, &scenes, &dots, row))
         .collect();
+    let null = NullModel::estimate(hits.iter().map(|h| h.score));
     top_k(&mut hits, params.top_k);
-    hits
+    (hits, null)
 }
 
 /// Temporal steps SCAL can use: the length of `α`.

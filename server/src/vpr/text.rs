@@ -85,6 +85,32 @@ pub fn string_similarity(a: &str, b: &str) -> f32 {
         .max(compact_substring(a, b))
 }
 
+/// How far two strings agree in what tells them apart, for the evidence
+/// against a candidate.
+///
+/// Shop signs share words ("ACME BAKERY 221" and "LUNA BAKERY 48" share
+/// "bakery"), which lifts `S_str` to 0.53 although the shops differ. So the
+/// tokens (of the normalised forms) that both strings contain are set
+/// aside, and `S_str` compares what is left. When nothing is left on one
+/// side, one string is a partial read of the other and they agree (1).
+/// "KING AVE" and "KINU AVE" compare "king" with "kinu" (0.75): an OCR slip.
+pub fn distinct_agreement(a: &str, b: &str) -> f32 {
+    let (na, nb) = (normalize(a), normalize(b));
+    let ta: BTreeSet<&str> = na.split_whitespace().collect();
+    let tb: BTreeSet<&str> = nb.split_whitespace().collect();
+    let rest = |own: &str, other: &BTreeSet<&str>| {
+        own.split_whitespace()
+            .filter(|t| !other.contains(t))
+            .collect::<Vec<_>>()
+            .join(" ")
+    };
+    let (ra, rb) = (rest(&na, &tb), rest(&nb, &ta));
+    if ra.is_empty() || rb.is_empty() {
+        return 1.0;
+    }
+    string_similarity(&ra, &rb)
+}
+
 /// Compact length at which the length term saturates.
 const LENGTH_SATURATION: usize = 12;
 /// Below this many stored keyframes, document frequencies say nothing and
@@ -165,6 +191,28 @@ mod tests {
         assert_eq!(normalize("ÉCOLE 3"), "école 3");
         assert_eq!(compact("B-214"), "b214");
         assert_eq!(compact(" Exit 12b "), "exit12b");
+    }
+
+    #[test]
+    fn distinct_agreement_sets_shared_words_aside() {
+        // S_str("LUNA BAKERY 48", "ACME BAKERY 221") = 1 − 7/15 = 0.533333
+        // (Levenshtein), but the shops differ: without "bakery",
+        // "luna 48" vs "acme 221" gives L = 1 − 7/8 = 0.125, J = 0, C = 0.
+        assert!(close(
+            string_similarity("LUNA BAKERY 48", "ACME BAKERY 221"),
+            0.533333
+        ));
+        assert!(close(
+            distinct_agreement("LUNA BAKERY 48", "ACME BAKERY 221"),
+            0.125
+        ));
+        // An OCR slip: "king" vs "kinu", L = 0.75.
+        assert!(close(distinct_agreement("KING AVE", "KINU AVE"), 0.75));
+        // A partial read agrees fully; so do equal strings.
+        assert_eq!(distinct_agreement("DENTAL", "ACME DENTAL"), 1.0);
+        assert_eq!(distinct_agreement("B-214", "b 214"), 1.0);
+        // Nothing shared: plain S_str ("b214" inside "b2145": 4/5).
+        assert!(close(distinct_agreement("B214", "B2145"), 0.8));
     }
 
     #[test]
