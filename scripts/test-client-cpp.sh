@@ -42,4 +42,17 @@ fi
 grep -q -e '-std=c++11' "$tmp/consumer.log" \
     || { cat "$tmp/consumer.log" >&2; echo "test-client-cpp: the consumer was not compiled with -std=c++11" >&2; exit 1; }
 "$tmp/consumer/consumer"
+
+# Optional: the ORB-SLAM3 harness (client-cpp/orbslam3/harness): CI cannot
+# fetch ORB-SLAM3, so its driver and vocabulary trainer are built only when
+# a checkout (v1.0, commit 0df83dd) and a Pangolin v0.6 prefix are given.
+if [ -n "${HUMEM_ORBSLAM3_DIR:-}" ]; then
+    [ -n "${HUMEM_PANGOLIN_PREFIX:-}" ] \
+        || { echo "test-client-cpp: HUMEM_ORBSLAM3_DIR is set but HUMEM_PANGOLIN_PREFIX is not" >&2; exit 1; }
+    echo "== client-cpp: ORB-SLAM3 harness: patch, build libORB_SLAM3 with the plugin, the driver and the vocabulary trainer"
+    client-cpp/orbslam3/harness/run.sh --build-only --orbslam3 "$HUMEM_ORBSLAM3_DIR" \
+        --pangolin "$HUMEM_PANGOLIN_PREFIX" --work "${HUMEM_ORBSLAM3_WORK:-$root/client-cpp/build/orbslam3-harness}"
+else
+    echo "== client-cpp: ORB-SLAM3 harness: skipped (set HUMEM_ORBSLAM3_DIR and HUMEM_PANGOLIN_PREFIX to build it)"
+fi
 echo "== client-cpp: OK"

@@ -7,6 +7,7 @@
 
 #include <algorithm>
 #include <atomic>
+#include <cmath>
 #include <ctime>
 #include <iomanip>
 #include <iostream>
@@ -85,11 +86,24 @@ std::string DefaultSessionId()
     return s.str();
 }
 
-humem::Pose PoseOf(KeyFrame* pKF)
+humem::Pose PoseOf(KeyFrame* pKF, float* Twc34 = 0)
 {
     // T_wc (camera to world) as HuMem's Pose wants it: camera centre + orientation in the map.
     Eigen::Matrix4f Twc = pKF->GetPoseInverse().matrix();
+    if(Twc34)
+        for(int r = 0; r < 3; ++r)
+            for(int c = 0; c < 4; ++c)
+                Twc34[r * 4 + c] = Twc(r, c);
     return humem::Pose::FromMatrixColumnMajor(Twc.data());
+}
+
+// Whether two 3x4 poses differ at all (beyond float noise).
+bool PoseChanged(const float* a, const float* b)
+{
+    for(int i = 0; i < 12; ++i)
+        if(std::fabs(a[i] - b[i]) > 1e-6f)
+            return true;
+    return false;
 }
 
 double MsSince(std::chrono::steady_clock::time_point t0)
@@ -182,7 +196,7 @@ KeyFrameDatabase* VprKeyFrameDatabase::Create(const ORBVocabulary &voc, const st
 
 VprKeyFrameDatabase::Counters::Counters()
     : framesCached(0), keyframesSeen(0), inserts(0), insertsNoImage(0), insertsRefused(0), erases(0),
-      mapResets(0), sessionResets(0), poseUpdates(0), loopQueries(0), loopAnswered(0),
+      mapResets(0), sessionResets(0), poseUpdates(0), posesSent(0), loopQueries(0), loopAnswered(0),
       loopNotAnswered(0), loopCandidates(0), loopUsed(0), mergeUsed(0), relocQueries(0),
       relocAnswersUsed(0), relocCandidates(0), writeFailures(0)
 {
@@ -310,7 +324,7 @@ bool VprKeyFrameDatabase::InsertLocked(KeyFrame* pKF, Entry &entry)
     k.frame_id = pKF->mnFrameId;
     k.map_id = pMap->GetId();
     k.timestamp = pKF->mTimeStamp;
-    k.pose = PoseOf(pKF);
+    k.pose = PoseOf(pKF, entry.sentTwc);
     k.image = img;
     humem::WriteResult w = mClient->Insert(k);
     if(w.state == humem::WriteState::kFailed)
@@ -325,7 +339,6 @@ bool VprKeyFrameDatabase::InsertLocked(KeyFrame* pKF, Entry &entry)
     mRefusedInRow = 0;
     entry.inserted = true;
     entry.serverMapId = k.map_id;
-    entry.map = pMap;
     ++mCounters.inserts;
     return true;
 }
@@ -420,7 +433,6 @@ void VprKeyFrameDatabase::add(KeyFrame* pKF)
     KeyFrameDatabase::add(pKF);  // the DBoW2 inverted file, as before
     if(!pKF)
         return;
-    bool force = false;
     {
         std::lock_guard<std::mutex> lock(mMutexHm);
         Entry &entry = mEntries[pKF->mnId];
@@ -433,29 +445,32 @@ void VprKeyFrameDatabase::add(KeyFrame* pKF)
         }
         if(!entry.inserted && !entry.triedInsert)
             InsertLocked(pKF, entry);
-        Map* pMap = pKF->GetMap();
-        if(entry.inserted && pMap && (entry.map != pMap || entry.serverMapId != pMap->GetId()))
-            force = true;  // moved by a map merge
     }
-    MaybeUpdatePoses(pKF->GetMap(), force);
+    // LoopClosing gets each keyframe after Local Mapping's BA moved it and
+    // its neighbours: keep HuMem's poses in step (debug log unless a
+    // keyframe changed maps).
+    SyncMap(pKF->GetMap(), "local mapping", 2);
 }
 
-void VprKeyFrameDatabase::MaybeUpdatePoses(Map* pMap, bool force)
+void VprKeyFrameDatabase::MapCorrected(Map* pMap)
 {
+    SyncMap(pMap, "loop closure / merge / global BA", 1);
+}
+
+void VprKeyFrameDatabase::SyncMap(Map* pMap, const char* why, int logLevel)
+{
+    // Which keyframes changed is found by comparing with what HuMem was sent,
+    // not by watching ORB-SLAM3's change counters: v1.0's monocular merge
+    // (MergeLocal) moves keyframes into the old map and renames it
+    // (Map::ChangeId) without raising GetLastBigChangeIdx, and a keyframe
+    // made after the merge is already in the renamed map, so nothing
+    // flagged the moved keyframes (runs with 3 and 2 merges sent 1 and 0
+    // pose updates, and the store kept their old map ids).
     if(!mSettings.poseUpdates || !pMap || pMap->IsBad())
         return;
     const unsigned long mapId = pMap->GetId();
-    const int bigChange = pMap->GetLastBigChangeIdx();
-    {
-        std::lock_guard<std::mutex> lock(mMutexHm);
-        int &seen = mMapBigChange[pMap];
-        if(!force && seen == bigChange)
-            return;
-        seen = bigChange;
-    }
     std::vector<KeyFrame*> vpKFs = pMap->GetAllKeyFrames();
     std::vector<humem::PoseUpdate> updates;
-    updates.reserve(vpKFs.size());
     size_t moved = 0;
     std::lock_guard<std::mutex> lock(mMutexHm);
     for(size_t i = 0; i < vpKFs.size(); ++i)
@@ -466,26 +481,33 @@ void VprKeyFrameDatabase::MaybeUpdatePoses(Map* pMap, bool force)
         std::unordered_map<unsigned long, Entry>::iterator it = mEntries.find(pKFi->mnId);
         if(it == mEntries.end() || it->second.kf != pKFi || !it->second.inserted)
             continue;
+        Entry &e = it->second;
+        float Twc[12];
+        humem::Pose pose = PoseOf(pKFi, Twc);
+        const bool mapChanged = e.serverMapId != mapId;
+        if(!mapChanged && !PoseChanged(Twc, e.sentTwc))
+            continue;
         humem::PoseUpdate u;
         u.keyframe_id = pKFi->mnId;
-        u.pose = PoseOf(pKFi);
-        if(it->second.serverMapId != mapId)
+        u.pose = pose;
+        if(mapChanged)
         {
             u.map_id = static_cast<uint64_t>(mapId);
-            it->second.serverMapId = mapId;
+            e.serverMapId = mapId;
             ++moved;
         }
-        it->second.map = pMap;
+        std::copy(Twc, Twc + 12, e.sentTwc);
         updates.push_back(u);
     }
     if(updates.empty())
         return;
     mClient->UpdatePoses(updates);
     ++mCounters.poseUpdates;
+    mCounters.posesSent += updates.size();
     std::ostringstream m;
-    m << "pose update: " << updates.size() << " keyframes of map " << mapId << " (" << moved
-      << " moved to it by a merge) after loop closure / merge / global BA";
-    Log(1, m.str());
+    m << "pose update: " << updates.size() << " of " << vpKFs.size() << " keyframes of map " << mapId << " ("
+      << moved << " moved to it) after " << why;
+    Log(moved > 0 ? std::min(1, logLevel) : logLevel, m.str());
 }
 
 void VprKeyFrameDatabase::erase(KeyFrame* pKF)
@@ -530,7 +552,6 @@ void VprKeyFrameDatabase::clearMap(Map* pMap)
     mClient->ResetMap(mapId);
     if(!elsewhere.empty())
         mClient->Erase(elsewhere);
-    mMapBigChange.erase(pMap);
     ++mCounters.mapResets;
     Log(1, "map " + std::to_string(mapId) + " reset: ResetMap sent (" + std::to_string(n) + " keyframes forgotten)");
 }
@@ -548,7 +569,6 @@ void VprKeyFrameDatabase::clear()
     mClient->SetSession(mSessionId);
     mEntries.clear();
     mRecentKFs.clear();
-    mMapBigChange.clear();
     mRelocTickets.clear();
     mHaveReloc = false;
     mImages.Clear();
@@ -701,7 +721,7 @@ void VprKeyFrameDatabase::LogCounters()
     m << "stats: frames cached " << c.framesCached << ", keyframes " << c.keyframesSeen << ", inserts "
       << c.inserts << " (no image " << c.insertsNoImage << ", refused " << c.insertsRefused << "), erases "
       << c.erases << ", map resets " << c.mapResets << ", session resets " << c.sessionResets
-      << ", pose updates " << c.poseUpdates << ", loop queries " << c.loopQueries << " (answered "
+      << ", pose updates " << c.poseUpdates << " (" << c.posesSent << " poses), loop queries " << c.loopQueries << " (answered "
       << c.loopAnswered << ", not answered " << c.loopNotAnswered << ", candidates " << c.loopCandidates
       << ", used: loop " << c.loopUsed << " merge " << c.mergeUsed << "), reloc queries " << c.relocQueries
       << " (answers used " << c.relocAnswersUsed << ", candidates " << c.relocCandidates

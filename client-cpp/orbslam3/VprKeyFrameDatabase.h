@@ -23,8 +23,10 @@
 //                made, resolves the ids to live keyframes, drops the query's
 //                covisible keyframes and splits loop (same map) and merge
 //                (other map) candidates by each keyframe's current map.
-//                add: also sends corrected poses after loop closure, global
-//                BA or a merge.
+//                add (after Local Mapping's BA of the keyframe) and
+//                MapCorrected (after a loop correction, a merge or a global
+//                BA): send the map id and pose of every keyframe of the map
+//                whose map id or pose differs from what HuMem was last sent.
 //   any          erase (KeyFrame::SetBadFlag) -> Erase; clearMap (active map
 //                reset) -> ResetMap; clear (full reset: ids restart) ->
 //                ResetSession and a new session id.
@@ -103,12 +105,13 @@ public:
     void NewFrame(const cv::Mat &imGray, const Frame &F) override;
     void NewKeyFrame(KeyFrame* pKF) override;
     void TrackingRecentlyLost(Frame* F, Map* pMap) override;
+    void MapCorrected(Map* pMap) override;
 
     // Counters since start (for logs and tests).
     struct Counters
     {
         uint64_t framesCached, keyframesSeen, inserts, insertsNoImage, insertsRefused, erases,
-            mapResets, sessionResets, poseUpdates, loopQueries, loopAnswered, loopNotAnswered,
+            mapResets, sessionResets, poseUpdates, posesSent, loopQueries, loopAnswered, loopNotAnswered,
             loopCandidates, loopUsed, mergeUsed, relocQueries, relocAnswersUsed, relocCandidates,
             writeFailures;
         Counters();
@@ -126,17 +129,22 @@ private:
         bool inserted;          // sent to HuMem (not erased since)
         bool triedInsert;
         uint64_t serverMapId;   // map id HuMem holds for it
-        Map* map;               // the Map it was in when last sent (merges move keyframes, and
-                                // Map::ChangeId renames the merged map: compare objects, not ids)
+        float sentTwc[12];      // the pose HuMem holds for it (T_wc, 3x4 row-major)
         humem::Ticket loopTicket;
-        Entry() : kf(0), inserted(false), triedInsert(false), serverMapId(0), map(0), loopTicket(0) {}
+        Entry() : kf(0), inserted(false), triedInsert(false), serverMapId(0), loopTicket(0)
+        {
+            for(int i = 0; i < 12; ++i)
+                sentTwc[i] = 0.f;
+        }
     };
 
     // Sends pKF (image from the cache); call with mMutex held. False if not sent.
     bool InsertLocked(KeyFrame* pKF, Entry &entry);
     void ApplyQueryOptions(humem::QueryRequest &q, bool reloc) const;
     void SubmitRelocalisation(const Frame &F, Map* pMap);
-    void MaybeUpdatePoses(Map* pMap, bool force);
+    // Sends UpdatePoses for the keyframes of pMap whose map id or pose differs
+    // from what HuMem holds; `why` goes into the log line.
+    void SyncMap(Map* pMap, const char* why, int logLevel);
     void Log(int level, const std::string &message);
     std::string DescribeCandidate(const humem::Candidate &c) const;
 
@@ -149,7 +157,6 @@ private:
     unsigned int mSessionResets;
     std::unordered_map<unsigned long, Entry> mEntries;                 // keyframe id -> entry
     std::deque<std::pair<unsigned long, unsigned long> > mRecentKFs;   // (kf id, map id), newest first
-    std::map<Map*, int> mMapBigChange;                                 // map -> big change idx seen
     std::map<humem::Ticket, unsigned long> mRelocTickets;              // ticket -> frame id
     bool mHaveReloc;
     humem::QueryResult mReloc;

@@ -1,0 +1,314 @@
+#!/usr/bin/env python3
+"""Evaluates the HuMem ORB-SLAM3 harness runs (run.sh) against a data set's poses.
+
+For every run folder (RUNS/<mode>-<n>, written by humem_orbslam3_mono and
+run.sh) it reads keyframes.txt, maps.txt, counters.txt, events.txt (the
+patch's "[ORB-SLAM3 event]" lines) and, for HuMem runs, store.jsonl (`humem
+export`), and prints one Markdown table:
+
+  keyframes, loop queries, candidates sent to geometric verification (true),
+  accepted loops and merges (true), relocalisations, maps at the end,
+  keyframe ATE (Sim3-aligned RMSE) and whether HuMem's store holds the map
+  ids and poses ORB-SLAM3 holds.
+
+"True" uses the data set's ground-truth poses of the two keyframes' source
+frames: <= 5 m apart and <= 30 degrees between the camera orientations.
+
+  evaluate.py --dataset town-dev/loop --runs-dir RUNS [--json out.json]
+"""
+import argparse
+import json
+import math
+import os
+import re
+import sys
+
+import numpy as np
+
+MAX_DIST_M = 5.0
+MAX_ANGLE_DEG = 30.0
+# Store check tolerances (ORB-SLAM3 map units; monocular maps have an
+# arbitrary scale of about the scene depth).
+STORE_TOL_T = 1e-3
+STORE_TOL_DEG = 0.05
+
+
+def quat_to_rot(qx, qy, qz, qw):
+    q = np.array([qw, qx, qy, qz], dtype=float)
+    q /= np.linalg.norm(q)
+    w, x, y, z = q
+    return np.array([
+        [1 - 2 * (y * y + z * z), 2 * (x * y - z * w), 2 * (x * z + y * w)],
+        [2 * (x * y + z * w), 1 - 2 * (x * x + z * z), 2 * (y * z - x * w)],
+        [2 * (x * z - y * w), 2 * (y * z + x * w), 1 - 2 * (x * x + y * y)],
+    ])
+
+
+def rot_angle_deg(Ra, Rb):
+    c = (np.trace(Ra.T @ Rb) - 1.0) / 2.0
+    return math.degrees(math.acos(max(-1.0, min(1.0, c))))
+
+
+def load_gt(dataset):
+    """Ground truth: list of (timestamp, position, rotation) by image index."""
+    gt = []
+    with open(os.path.join(dataset, "sequence_poses.txt")) as f:
+        for line in f:
+            if not line.strip() or line.startswith("#"):
+                continue
+            v = [float(x) for x in line.split()]
+            gt.append((v[0], np.array(v[1:4]), quat_to_rot(*v[4:8])))
+    return gt
+
+
+class Frames:
+    """Maps timestamps (as printed by the patch, 6 decimals) to image indices."""
+
+    def __init__(self, gt):
+        self.ts = np.array([g[0] for g in gt])
+
+    def index(self, t):
+        i = int(np.argmin(np.abs(self.ts - t)))
+        if abs(self.ts[i] - t) > 1e-3:
+            raise ValueError("timestamp %f matches no frame" % t)
+        return i
+
+
+def true_pair(gt, i, j):
+    d = float(np.linalg.norm(gt[i][1] - gt[j][1]))
+    a = rot_angle_deg(gt[i][2], gt[j][2])
+    return d <= MAX_DIST_M and a <= MAX_ANGLE_DEG, d, a
+
+
+def umeyama_rmse(src, dst):
+    """Sim3 (rotation, translation, scale) aligning src to dst (Umeyama 1991); returns RMSE."""
+    n = src.shape[0]
+    mu_s, mu_d = src.mean(0), dst.mean(0)
+    xs, xd = src - mu_s, dst - mu_d
+    cov = xd.T @ xs / n
+    U, D, Vt = np.linalg.svd(cov)
+    S = np.eye(3)
+    if np.linalg.det(U) * np.linalg.det(Vt) < 0:
+        S[2, 2] = -1
+    R = U @ S @ Vt
+    var_s = (xs ** 2).sum() / n
+    s = np.trace(np.diag(D) @ S) / var_s if var_s > 0 else 1.0
+    t = mu_d - s * R @ mu_s
+    err = dst - (s * (R @ src.T).T + t)
+    return float(np.sqrt((err ** 2).sum(1).mean()))
+
+
+def read_kv(path):
+    out = {}
+    if os.path.exists(path):
+        with open(path) as f:
+            for line in f:
+                p = line.split(None, 1)
+                if len(p) == 2:
+                    out[p[0]] = p[1].strip()
+    return out
+
+
+def read_keyframes(path):
+    kfs = []
+    with open(path) as f:
+        for line in f:
+            if not line.strip() or line.startswith("#"):
+                continue
+            v = line.split()
+            kfs.append({
+                "index": int(v[0]), "kf": int(v[1]), "frame": int(v[2]), "map": int(v[3]), "t": float(v[4]),
+                "p": np.array([float(x) for x in v[5:8]]), "R": quat_to_rot(*[float(x) for x in v[8:12]]),
+            })
+    return kfs
+
+
+KF_RE = r"KF (\d+) frame (\d+) t ([-0-9.e+]+)"
+CAND_RE = re.compile(r"^candidates " + KF_RE + r" loop (\d+) \[([^\]]*)\] merge (\d+) \[([^\]]*)\]")
+PAIR_RE = re.compile(r"^(loop|merge) " + KF_RE + r" matched " + KF_RE)
+RELOC_RE = re.compile(r"^relocalised frame (\d+) t ([-0-9.e+]+)")
+ATTEMPT_RE = re.compile(r"^relocalisation attempt frame (\d+) t ([-0-9.e+]+) candidates (\d+)")
+
+
+def store_check(store_path, kfs):
+    """Compares `humem export` with ORB-SLAM3's live keyframes: ids, map ids, poses."""
+    if not os.path.exists(store_path):
+        return None, "no export"
+    store = {}
+    with open(store_path) as f:
+        for line in f:
+            line = line.strip()
+            if not line.startswith("{"):
+                continue
+            o = json.loads(line)
+            if o.get("robotId", "orbslam3") != "orbslam3":
+                continue
+            pose = o.get("pose", {})
+            tr, ro = pose.get("translation", {}), pose.get("rotation", {})
+            store[int(o.get("keyframeId", 0))] = {
+                "map": int(o.get("mapId", 0)),
+                "p": np.array([float(tr.get(k, 0.0)) for k in ("x", "y", "z")]),
+                "R": quat_to_rot(float(ro.get("x", 0.0)), float(ro.get("y", 0.0)), float(ro.get("z", 0.0)),
+                                 float(ro.get("w", 1.0))),
+            }
+    missing = bad_map = bad_pose = 0
+    worst_t = worst_a = 0.0
+    live = set()
+    for k in kfs:
+        live.add(k["kf"])
+        s = store.get(k["kf"])
+        if s is None:
+            missing += 1
+            continue
+        if s["map"] != k["map"]:
+            bad_map += 1
+        dt = float(np.linalg.norm(s["p"] - k["p"]))
+        da = rot_angle_deg(s["R"], k["R"])
+        worst_t, worst_a = max(worst_t, dt), max(worst_a, da)
+        if dt > STORE_TOL_T or da > STORE_TOL_DEG:
+            bad_pose += 1
+    extra = len([i for i in store if i not in live])
+    ok = missing == 0 and bad_map == 0 and bad_pose == 0 and extra == 0
+    detail = {"store": len(store), "missing": missing, "map_mismatch": bad_map, "pose_mismatch": bad_pose,
+              "extra": extra, "worst_dt": worst_t, "worst_deg": worst_a}
+    if ok:
+        text = "match (%d)" % len(kfs)
+    else:
+        parts = []
+        for key, label in (("map_mismatch", "map ids"), ("pose_mismatch", "poses"), ("missing", "missing"),
+                           ("extra", "extra")):
+            if detail[key]:
+                parts.append("%d %s" % (detail[key], label))
+        text = "MISMATCH: " + ", ".join(parts)
+    return ok, text, detail
+
+
+def evaluate_run(rd, gt, frames):
+    run = read_kv(os.path.join(rd, "run.txt"))
+    counters = read_kv(os.path.join(rd, "counters.txt"))
+    res = {"dir": os.path.basename(rd), "mode": run.get("mode", "?"), "run": run.get("run", "?"),
+           "driver_rc": run.get("driver_rc", "?")}
+    kf_path = os.path.join(rd, "keyframes.txt")
+    if not os.path.exists(kf_path):
+        res["error"] = "no keyframes.txt (driver rc %s)" % res["driver_rc"]
+        return res
+    kfs = read_keyframes(kf_path)
+    res["keyframes"] = len(kfs)
+    maps = {}
+    for k in kfs:
+        maps.setdefault(k["map"], []).append(k)
+    res["maps"] = len(maps)
+
+    queries = cands = cands_true = 0
+    accepted = {"loop": [], "merge": []}
+    relocs = []
+    attempts = attempt_cands = 0
+    with open(os.path.join(rd, "events.txt")) as f:
+        for line in f:
+            line = line.strip()
+            m = CAND_RE.match(line)
+            if m:
+                queries += 1
+                qi = frames.index(float(m.group(3)))
+                for grp in (5, 7):
+                    for t in filter(None, m.group(grp).split(",")):
+                        cands += 1
+                        cands_true += true_pair(gt, qi, frames.index(float(t)))[0]
+                continue
+            m = PAIR_RE.match(line)
+            if m:
+                a, b = frames.index(float(m.group(4))), frames.index(float(m.group(7)))
+                ok, d, ang = true_pair(gt, a, b)
+                accepted[m.group(1)].append({"kf": int(m.group(2)), "frame": a, "matched_kf": int(m.group(5)),
+                                              "matched_frame": b, "true": ok, "dist_m": d, "angle_deg": ang})
+                continue
+            m = RELOC_RE.match(line)
+            if m:
+                relocs.append(frames.index(float(m.group(2))))
+                continue
+            m = ATTEMPT_RE.match(line)
+            if m:
+                attempts += 1
+                attempt_cands += int(m.group(3))
+    res.update({"queries": queries, "candidates": cands, "candidates_true": cands_true, "loops": accepted["loop"],
+                "merges": accepted["merge"], "relocalisations": relocs,
+                "reloc_attempts": attempts, "reloc_attempt_candidates": attempt_cands,
+                "frames_lost": int(counters.get("frames_lost", "0"))})
+    if counters.get("humem") == "1":
+        res["humem_answered"] = int(counters.get("humem_loop_answered", "0"))
+        res["humem_queries"] = int(counters.get("humem_loop_queries", "0"))
+        res["humem_pose_updates"] = int(counters.get("humem_pose_updates", "0"))
+
+    # Keyframe ATE on the largest map (monocular: Sim3 alignment).
+    big = max(maps.values(), key=len)
+    res["ate_map_keyframes"] = len(big)
+    if len(big) >= 3:
+        est = np.array([k["p"] for k in big])
+        ref = np.array([gt[k["index"]][1] for k in big])
+        res["ate_m"] = umeyama_rmse(est, ref)
+
+    if res["mode"] == "humem":
+        r = store_check(os.path.join(rd, "store.jsonl"), kfs)
+        res["store_ok"], res["store"] = r[0], r[1]
+        if len(r) > 2:
+            res["store_detail"] = r[2]
+    return res
+
+
+def fmt_pairs(pairs):
+    return "%d (%d)" % (len(pairs), sum(p["true"] for p in pairs))
+
+
+def main():
+    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("--dataset", required=True)
+    ap.add_argument("--runs-dir", required=True)
+    ap.add_argument("--json", help="also write the results here (default RUNS/results.json)")
+    a = ap.parse_args()
+    gt = load_gt(a.dataset)
+    frames = Frames(gt)
+    dirs = sorted(d for d in os.listdir(a.runs_dir) if os.path.exists(os.path.join(a.runs_dir, d, "run.txt")))
+    # humem-1, dbow2-1, ... -> group by mode, then run number
+    results = [evaluate_run(os.path.join(a.runs_dir, d), gt, frames) for d in dirs]
+    results.sort(key=lambda r: (r["mode"] != "humem", int(r["run"]) if str(r["run"]).isdigit() else 0))
+
+    print("| run | keyframes | loop queries | candidates to geometric verification (true) | loops (true) "
+          "| merges (true) | relocalisations (of attempts) | maps at end | KF ATE, Sim3 RMSE (largest map) | store = ORB-SLAM3 |")
+    print("| --- | --- | --- | --- | --- | --- | --- | --- | --- | --- |")
+    for r in results:
+        name = "%s %s" % ("HuMem" if r["mode"] == "humem" else "DBoW2" if r["mode"] == "dbow2" else r["mode"], r["run"])
+        if "error" in r:
+            print("| %s | %s |  |  |  |  |  |  |  |  |" % (name, r["error"]))
+            continue
+        q = str(r["queries"])
+        if "humem_answered" in r:
+            q += " (answered %d)" % r["humem_answered"]
+        ate = "%.2f m (%d KFs)" % (r["ate_m"], r["ate_map_keyframes"]) if "ate_m" in r else "—"
+        reloc = "%d of %d" % (len(r["relocalisations"]), r["reloc_attempts"])
+        print("| %s | %d | %s | %d (%d) | %s | %s | %s | %d | %s | %s |" % (
+            name, r["keyframes"], q, r["candidates"], r["candidates_true"], fmt_pairs(r["loops"]),
+            fmt_pairs(r["merges"]), reloc, r["maps"], ate, r.get("store", "—")))
+    print()
+    print("Accepted loops and merges (source frames; ground-truth distance and angle between them):")
+    for r in results:
+        for kind in ("loops", "merges"):
+            for p in r.get(kind, []):
+                print("- %s %s: %s KF %d (frame %d) ~ KF %d (frame %d): %.1f m, %.0f deg -> %s" % (
+                    r["mode"], r["run"], kind[:-1], p["kf"], p["frame"], p["matched_kf"], p["matched_frame"],
+                    p["dist_m"], p["angle_deg"], "true" if p["true"] else "FALSE"))
+    for r in results:
+        if r.get("reloc_attempts"):
+            print("- %s %s: %d frames lost; %d relocalisation attempts with %d candidates in all; relocalised at "
+                  "frames %s" % (r["mode"], r["run"], r["frames_lost"], r["reloc_attempts"],
+                                 r["reloc_attempt_candidates"],
+                                 ", ".join(str(i) for i in r["relocalisations"]) or "none"))
+        if r.get("store_detail") and not r.get("store_ok"):
+            print("- %s %s: store check %s" % (r["mode"], r["run"], json.dumps(r["store_detail"])))
+    out = a.json or os.path.join(a.runs_dir, "results.json")
+    with open(out, "w") as f:
+        json.dump(results, f, indent=1, default=lambda o: o.tolist() if hasattr(o, "tolist") else str(o))
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
