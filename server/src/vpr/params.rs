@@ -82,7 +82,7 @@ const GENERIC_WORDS: &[&str] = &[
 ];
 
 /// Default `τ_c` (see [`VprParams::tau_c`]).
-pub const TAU_C: f32 = 0.40;
+pub const TAU_C: f32 = 0.36;
 
 /// Which score the selection threshold applies to.
 ///
