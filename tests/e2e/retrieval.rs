@@ -49,9 +49,17 @@ async fn revisited_places_are_found_first_and_neighbours_are_excluded() {
                 "candidate {} is only {gap} frames away",
                 c.keyframe_id
             );
-            assert!(c.score > 0.70, "candidate below the threshold: {}", c.score);
+            assert!(
+                c.score > reply.threshold,
+                "candidate below the threshold {}: {}",
+                reply.threshold,
+                c.score
+            );
             let e = c.evidence.as_ref().unwrap();
-            assert!(c.score >= e.scene_score - 1e-6);
+            // The paper's Λ never falls below S_s; the calibrated score falls
+            // below its scene confidence only with evidence against.
+            assert!(e.raw_score >= e.scene_score - 1e-6);
+            assert!(c.score >= e.scene_confidence * (1.0 - e.contradiction) - 1e-6);
         }
         let scores: Vec<f32> = reply.candidates.iter().map(|c| c.score).collect();
         assert!(
@@ -222,12 +230,14 @@ async fn scopes_select_maps_and_robots() {
 }
 
 #[tokio::test(flavor = "multi_thread")]
-async fn grounded_text_breaks_a_tie_between_look_alike_places() {
+async fn distinctive_text_tells_look_alike_places_apart() {
     let dir = tempfile::tempdir().unwrap();
     let server = Server::start(dir.path());
     let mut client = server.client().await;
-    let mut world = World::new(3, 3);
-    // Two corridors that look the same; only the room number differs.
+    let mut world = World::new(33, 3);
+    // Two corridors that look the same; only the shop sign differs. Thirty
+    // other places fill the store, so the query's null is known (a store
+    // smaller than `null_min_samples` calibrates nothing).
     let look = world.view(0, 0.0);
     let corridor = |kf: u64, text: &str| {
         scenes::keyframe(
@@ -237,29 +247,88 @@ async fn grounded_text_breaks_a_tie_between_look_alike_places() {
             scenes::features(look.clone(), 0, vec![scenes::sign(text, 0.5, 0.4)]),
         )
     };
+    let others: Vec<proto::Keyframe> = (3..33u64)
+        .map(|place| {
+            scenes::keyframe(
+                "r",
+                "s",
+                [place, place * 200, 0],
+                scenes::features(world.view(place as usize, 0.3), 1, vec![]),
+            )
+        })
+        .collect();
     insert_all(
         &mut client,
-        [corridor(1, "ROOM 2.17"), corridor(2, "ROOM 3.04")],
+        [
+            corridor(1, "ACME BAKERY 221"),
+            corridor(2, "LUNA BAKERY 48"),
+        ]
+        .into_iter()
+        .chain(others),
     )
     .await;
     let mut query = query_stored("r", "s", 0);
     query.keyframe_id = None;
-    query.frame_id = Some(5000);
+    query.frame_id = Some(50_000);
+    query.threshold = Some(0.0);
     query.content = Some(proto::query_request::Content::Features(
-        scenes::features_of(&corridor(9, "ROOM 3.04")),
+        scenes::features_of(&corridor(9, "LUNA BAKERY 48")),
     ));
+    let score_of = |reply: &proto::QueryResponse, kf: u64| {
+        let c = reply
+            .candidates
+            .iter()
+            .find(|c| c.keyframe_id == kf)
+            .unwrap_or_else(|| panic!("keyframe {kf} not proposed: {reply:?}"));
+        (c.score, c.evidence.clone().unwrap())
+    };
+
     let full = client.query(query.clone()).await.unwrap().into_inner();
     assert_eq!(full.candidates[0].keyframe_id, 2);
-    let e = full.candidates[0].evidence.as_ref().unwrap();
+    let (matching, e) = score_of(&full, 2);
     assert!(e.text_score > 0.8 && e.text_distinctiveness > 0.0, "{e:?}");
-    assert_eq!(e.text_matches[0].candidate_text, "ROOM 3.04");
-    assert!(full.candidates[0].score > full.candidates[1].score);
+    assert_eq!(e.text_matches[0].candidate_text, "LUNA BAKERY 48");
+    assert_eq!(e.contradiction, 0.0);
+    assert!(e.null_samples >= 30 && e.scene_confidence > 0.9, "{e:?}");
+    // The look-alike with the other shop's sign: the texts contradict.
+    let (contradicted, e) = score_of(&full, 1);
+    assert!(e.contradiction > 0.3 && e.text_contradiction > 0.3, "{e:?}");
+    assert_eq!(e.text_conflicts.len(), 1);
+    assert_eq!(e.text_conflicts[0].query_text, "LUNA BAKERY 48");
+    assert_eq!(e.text_conflicts[0].candidate_text, "ACME BAKERY 221");
+    assert!(contradicted < matching);
+    // Its calibrated score went down from the scene score, not merely failed to rise.
+    assert!(
+        contradicted < e.scene_confidence - 0.2,
+        "{contradicted} {e:?}"
+    );
+    // At the default threshold only the matching corridor is proposed.
+    let mut at_default = query.clone();
+    at_default.threshold = None;
+    let answer = client.query(at_default).await.unwrap().into_inner();
+    let ids: Vec<u64> = answer.candidates.iter().map(|c| c.keyframe_id).collect();
+    assert_eq!(ids, vec![2], "threshold {}", answer.threshold);
+
+    // The paper's fusion (evidence for only) scores the same pair higher:
+    // the text merely fails to add there.
+    query.layers = proto::Layers::FullSupportOnly as i32;
+    let paper = client.query(query.clone()).await.unwrap().into_inner();
+    let (supported_only, e) = score_of(&paper, 1);
+    assert_eq!(e.contradiction, 0.0);
+    assert!(
+        contradicted < supported_only - 0.2,
+        "{contradicted} vs {supported_only}"
+    );
+    assert!(supported_only >= e.scene_confidence - 1e-6);
 
     // SCAL alone cannot tell them apart; the layer switch is honoured.
     query.layers = proto::Layers::Scal as i32;
     let scal = client.query(query).await.unwrap().into_inner();
-    assert_eq!(scal.candidates.len(), 2);
-    assert_eq!(scal.candidates[0].score, scal.candidates[1].score);
-    let e = scal.candidates[0].evidence.as_ref().unwrap();
-    assert_eq!((e.object_score, e.text_score), (0.0, 0.0));
+    let (a, _) = score_of(&scal, 1);
+    let (b, e) = score_of(&scal, 2);
+    assert_eq!(a, b);
+    assert_eq!(
+        (e.object_score, e.text_score, e.contradiction),
+        (0.0, 0.0, 0.0)
+    );
 }

@@ -19,8 +19,12 @@ use crate::store::Store;
 /// Prints every stored keyframe (ordered by robot, session, keyframe id) and
 /// returns how many were printed.
 pub fn export(data_dir: &Path, out: &mut dyn Write) -> anyhow::Result<usize> {
-    let store = Store::open(data_dir, 0, 1)
-        .with_context(|| format!("opening the store in {} (is a server running on it?)", data_dir.display()))?;
+    let store = Store::open(data_dir, 0, 1).with_context(|| {
+        format!(
+            "opening the store in {} (is a server running on it?)",
+            data_dir.display()
+        )
+    })?;
     let index = store.index();
     let mut rows: Vec<usize> = (0..index.len()).collect();
     rows.sort_by(|&a, &b| index.meta(a).key.cmp(&index.meta(b).key));
