@@ -31,7 +31,8 @@ usage: $0 --orbslam3 DIR --pangolin PREFIX --dataset DIR [options]
   --runs N            runs per mode (default 3)
   --modes "M..."      humem and/or dbow2 (default "humem dbow2"); runs alternate between modes
   --work DIR          build and run cache (default: \$HOME/.cache/humem-orbslam3)
-  --fps F             frames fed per second (default 10)
+  --fps F             frames fed per second, wall clock (default 10, the data's rate for
+                      town-dev; lower it on a loaded machine: Local Mapping must keep up)
   --vocab FILE        use this vocabulary (text, as ORBvoc.txt) instead of training one
   --vocab-images "D..."  image folders to train on (default: every image folder of the
                       data set's sibling folders, never the evaluated one)
@@ -201,9 +202,17 @@ stamp=$(date -u +%Y%m%dT%H%M%SZ)
 out="$work/runs/$(basename "$(dirname "$dataset")")-$(basename "$dataset")-$stamp"
 mkdir -p "$out"
 read -r cw ch < <("$PYTHON" -c 'import json,sys; c=json.load(open(sys.argv[1])); print(c["width"], c["height"])' "$calib")
-"$PYTHON" - "$calib" "$fps" >"$out/camera.yaml" <<'EOF'
-import json, sys
+"$PYTHON" - "$calib" "$fps" "$dataset/sequence_poses.txt" >"$out/camera.yaml" <<'EOF'
+import json, os, sys
 c = json.load(open(sys.argv[1]))
+# Camera.fps is the data's frame rate (ORB-SLAM3 counts frames with it), not
+# the feed rate: from the poses' timestamps if there are any.
+rate = float(sys.argv[2])
+if os.path.exists(sys.argv[3]):
+    t = [float(l.split()[0]) for l in open(sys.argv[3]) if l.strip() and not l.startswith("#")]
+    d = sorted(b - a for a, b in zip(t, t[1:]) if b > a)
+    if d:
+        rate = 1.0 / d[len(d) // 2]
 d = c.get("distortion", {}) if isinstance(c.get("distortion"), dict) else {}
 print('%YAML:1.0')
 print('# written by client-cpp/orbslam3/harness/run.sh from ' + sys.argv[1])
@@ -215,7 +224,7 @@ for k in ("k1", "k2", "p1", "p2"):
     print('Camera1.%s: %.6f' % (k, float(d.get(k, 0.0))))
 print('Camera.width: %d' % int(c["width"]))
 print('Camera.height: %d' % int(c["height"]))
-print('Camera.fps: %d' % int(round(float(sys.argv[2]))))
+print('Camera.fps: %d' % int(round(rate)))
 print('Camera.RGB: 1')
 print('ORBextractor.nFeatures: 1000')
 print('ORBextractor.scaleFactor: 1.2')
