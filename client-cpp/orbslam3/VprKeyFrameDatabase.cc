@@ -118,7 +118,7 @@ double MsSince(std::chrono::steady_clock::time_point t0)
 
 HuMemSettings::HuMemSettings()
     : enabled(true), robotId("orbslam3"), resetSessionOnStart(false), queryDeadlineMs(500),
-      queryTimeoutMs(5000), imageCacheFrames(64), topN(0), threshold(-1.f), relocThreshold(-1.f),
+      queryTimeoutMs(5000), imageCacheFrames(64), topN(0), relocTopN(10), threshold(-1.f), relocThreshold(0.f),
       minFrameGap(-1), relocMinFrameGap(0), relocMaxAgeFrames(30), minMapKeyFrames(12),
       dbow2Fallback(false), poseUpdates(true), verbose(1)
 {
@@ -138,6 +138,7 @@ bool HuMemSettings::Load(const std::string &strSettingsFile)
     ReadNumber(fs, "HuMem.QueryTimeoutMs", &queryTimeoutMs);
     ReadNumber(fs, "HuMem.ImageCacheFrames", &imageCacheFrames);
     ReadNumber(fs, "HuMem.TopN", &topN);
+    ReadNumber(fs, "HuMem.RelocTopN", &relocTopN);
     ReadNumber(fs, "HuMem.Threshold", &threshold);
     ReadNumber(fs, "HuMem.RelocThreshold", &relocThreshold);
     ReadNumber(fs, "HuMem.MinFrameGap", &minFrameGap);
@@ -254,8 +255,14 @@ void VprKeyFrameDatabase::ApplyQueryOptions(humem::QueryRequest &q, bool reloc) 
     // v1.0 relocalises in the active map only: ask about that map, so that
     // look-alike keyframes of older maps do not crowd the answer.
     q.scope = reloc && q.map_id.has_value() ? humem::Scope::kSameMap : humem::Scope::kAllMaps;
-    if(mSettings.topN > 0)
-        q.top_n = static_cast<uint32_t>(mSettings.topN);
+    const int topN = reloc ? mSettings.relocTopN : mSettings.topN;
+    if(topN > 0)
+        q.top_n = static_cast<uint32_t>(topN);
+    // Relocalisation, like DBoW2's, has no absolute score threshold by
+    // default (HuMem.RelocThreshold 0): Tracking checks every candidate with
+    // PnP, and a frame just after tracking was lost (motion blur, a turn)
+    // scores its true places low; with the loop threshold, 63 of 64
+    // relocalisation answers in a town-dev run were empty.
     float threshold = reloc && mSettings.relocThreshold >= 0.f ? mSettings.relocThreshold : mSettings.threshold;
     if(threshold >= 0.f)
         q.threshold = threshold;

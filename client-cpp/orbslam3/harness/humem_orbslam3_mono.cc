@@ -1,6 +1,6 @@
 // Job: the HuMem harness's headless monocular driver for patched ORB-SLAM3
 // v1.0. It feeds an image folder to ORB_SLAM3::System (viewer off) at a
-// fixed rate, with the HuMem plugin or plain DBoW2 as the settings YAML
+// fixed rate (never ahead of Local Mapping, see --realtime), with the HuMem plugin or plain DBoW2 as the settings YAML
 // chooses (HuMem.Address / HuMem.Enabled), waits for Local Mapping and Loop
 // Closing to finish their queues, and writes into --out:
 //   keyframes.txt      every live keyframe at the end, as ORB-SLAM3 holds it:
@@ -48,13 +48,15 @@ struct Args
     std::string vocabulary, settings, images, out, timestamps;
     double fps;
     int maxFrames;
-    Args() : fps(10.0), maxFrames(-1) {}
+    bool realtime;
+    Args() : fps(10.0), maxFrames(-1), realtime(false) {}
 };
 
 void Usage()
 {
     std::cerr << "usage: humem_orbslam3_mono --vocabulary VOC.txt --settings SETTINGS.yaml --images DIR --out DIR\n"
-                 "                           [--fps 10] [--timestamps POSES.txt (TUM: first column)] [--max-frames N]\n";
+                 "                           [--fps 10] [--timestamps POSES.txt (TUM: first column)] [--max-frames N]\n"
+                 "                           [--realtime 1 (do not wait for Local Mapping)]\n";
 }
 
 bool Parse(int argc, char** argv, Args* a)
@@ -71,6 +73,7 @@ bool Parse(int argc, char** argv, Args* a)
         else if(k == "--timestamps") a->timestamps = v;
         else if(k == "--fps") a->fps = atof(v.c_str());
         else if(k == "--max-frames") a->maxFrames = atoi(v.c_str());
+        else if(k == "--realtime") a->realtime = atoi(v.c_str()) != 0;
         else { Usage(); return false; }
     }
     if(a->vocabulary.empty() || a->settings.empty() || a->images.empty() || a->out.empty() || a->fps <= 0)
@@ -176,6 +179,13 @@ int main(int argc, char** argv)
     ORB_SLAM3::System SLAM(a.vocabulary, a.settings, ORB_SLAM3::System::MONOCULAR, false);
 
     // Feed the frames at a fixed rate: frame i is due at start + i / fps.
+    // Unless --realtime 1, a frame also waits until Local Mapping has taken
+    // the keyframes queued so far: on a loaded machine a real-time feed
+    // outruns Local Mapping and tracking fails for reasons that have nothing
+    // to do with place recognition (on 2 busy cores most frames were lost).
+    ORB_SLAM3::LocalMapping* lm = SLAM.GetLocalMapper();
+    ORB_SLAM3::LoopClosing* lc = SLAM.GetLoopCloser();
+    double paceStart = 0;
     std::ofstream frames((a.out + "/frames.txt").c_str());
     frames << "# index timestamp state (ORB-SLAM3 tracking state after the frame: 1 not initialised, 2 ok, "
               "3 recently lost, 4 lost)\n";
@@ -189,20 +199,25 @@ int main(int argc, char** argv)
             std::cerr << "cannot read " << names[i] << std::endl;
             return 1;
         }
+        if(!a.realtime)
+        {
+            const std::chrono::steady_clock::time_point w0 = std::chrono::steady_clock::now();
+            WaitUntil([&]() { return lm->KeyframesInQueue() == 0; }, 10);
+            paceStart += std::chrono::duration<double>(std::chrono::steady_clock::now() - w0).count();
+        }
         SLAM.TrackMonocular(im, ts[i]);
         const int state = SLAM.GetTrackingState();
         if(state == ORB_SLAM3::Tracking::RECENTLY_LOST || state == ORB_SLAM3::Tracking::LOST)
             ++framesLost;
         frames << i << " " << std::fixed << std::setprecision(6) << ts[i] << " " << state << "\n";
-        std::this_thread::sleep_until(t0 + std::chrono::microseconds(static_cast<long>((i + 1) * 1e6 / a.fps)));
+        std::this_thread::sleep_until(t0 + std::chrono::microseconds(static_cast<long>((i + 1) * 1e6 / a.fps)) +
+                                      std::chrono::microseconds(static_cast<long>(paceStart * 1e6)));
     }
     frames.close();
     const double feedSeconds = std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
 
     // Let Local Mapping and Loop Closing finish what is queued (v1.0's
     // Shutdown does not wait), then stop them.
-    ORB_SLAM3::LocalMapping* lm = SLAM.GetLocalMapper();
-    ORB_SLAM3::LoopClosing* lc = SLAM.GetLoopCloser();
     bool drained = true;
     for(int pass = 0; pass < 2; ++pass)  // twice: loop closing can start a global BA
     {
@@ -260,7 +275,7 @@ int main(int argc, char** argv)
     mapsOut.close();
 
     std::ofstream counters((a.out + "/counters.txt").c_str());
-    counters << "frames " << n << "\nframes_lost " << framesLost << "\nfeed_seconds " << feedSeconds
+    counters << "frames " << n << "\nframes_lost " << framesLost << "\nfeed_seconds " << feedSeconds << "\nwaited_for_local_mapping_seconds " << paceStart
              << "\nkeyframes " << liveKFs << "\nmaps " << maps.size() << "\ndrained " << (drained && finished ? 1 : 0)
              << "\n";
     ORB_SLAM3::VprKeyFrameDatabase* vpr = dynamic_cast<ORB_SLAM3::VprKeyFrameDatabase*>(SLAM.GetKeyFrameDatabase());

@@ -40,6 +40,8 @@ usage: $0 --orbslam3 DIR --pangolin PREFIX --dataset DIR [options]
   --vocab-k K --vocab-l L  branching factor and depth (default 10 and 5)
   --server-env "K=V ..."   extra environment for humem serve (default: OCR detector input
                       = the camera's size, rounded down to multiples of 32)
+  --realtime          feed strictly by the clock; by default a frame also waits until Local
+                      Mapping has taken the queued keyframes (a loaded machine cannot keep up)
   --build-only        build (and train the vocabulary), run nothing
   --evaluate-only DIR evaluate an earlier run folder again
 Environment: PYTHON (python3 with numpy; default python3), JOBS (2), NICE (10),
@@ -49,7 +51,7 @@ EOF
 
 orbslam3="" pangolin="" dataset="" humem="$repo/target/release/humem" runs=3 modes="humem dbow2"
 work="${HOME}/.cache/humem-orbslam3" fps=10 vocab="" vocab_images="" vocab_max=400 vocab_k=10 vocab_l=5
-server_env="" build_only=0 evaluate_only=""
+server_env="" build_only=0 evaluate_only="" realtime=0
 while [ $# -gt 0 ]; do
     case "$1" in
         --orbslam3) orbslam3=$2; shift 2 ;;
@@ -67,6 +69,7 @@ while [ $# -gt 0 ]; do
         --vocab-l) vocab_l=$2; shift 2 ;;
         --server-env) server_env=$2; shift 2 ;;
         --build-only) build_only=1; shift ;;
+        --realtime) realtime=1; shift ;;
         --evaluate-only) evaluate_only=$2; shift 2 ;;
         -h|--help) usage; exit 0 ;;
         *) echo "run.sh: unknown argument $1" >&2; usage >&2; exit 2 ;;
@@ -242,7 +245,7 @@ fi
 timestamps=()
 [ -f "$dataset/sequence_poses.txt" ] && timestamps=(--timestamps "$dataset/sequence_poses.txt")
 {
-    echo "dataset $dataset"; echo "orbslam3 $orbslam3"; echo "vocabulary $vocab"; echo "fps $fps"
+    echo "dataset $dataset"; echo "orbslam3 $orbslam3"; echo "vocabulary $vocab"; echo "fps $fps"; echo "realtime $realtime"
     echo "humem $humem"; echo "server_env $server_env"; echo "patch_sha1 $(sha1sum < "$plugin_dir/orbslam3-v1.0.patch" | cut -c1-12)"
     echo "plugin_sha1 $(cat "$plugin_dir/VprKeyFrameDatabase.cc" "$plugin_dir/VprKeyFrameDatabase.h" | sha1sum | cut -c1-12)"
     echo "host $(hostname) $(nproc) cores"
@@ -289,7 +292,7 @@ for i in $(seq 1 "$runs"); do
         log "run $i, $mode -> $rd"
         set +e
         "$driver" --vocabulary "$vocab" --settings "$rd/settings.yaml" --images "$dataset/sequence" \
-            --out "$rd" --fps "$fps" "${timestamps[@]}" >"$rd/orbslam3.log" 2>&1
+            --out "$rd" --fps "$fps" --realtime "$realtime" "${timestamps[@]}" >"$rd/orbslam3.log" 2>&1
         rc=$?
         set -e
         echo "driver_rc $rc" >>"$rd/run.txt"
