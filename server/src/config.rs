@@ -244,4 +244,31 @@ mod tests {
             Err(ConfigError::MissingFile(_))
         ));
     }
+
+    #[test]
+    fn calibration_and_contradiction_settings_are_checked_at_load() {
+        let dir = tempfile::tempdir().unwrap();
+        let file = dir.path().join("humem.toml");
+        std::fs::write(
+            &file,
+            "[vpr]
+calibration = \"raw\"\ng_xt = 0.5\n",
+        )
+        .unwrap();
+        let config = Config::load(Some(&file), Figment::new()).unwrap();
+        assert_eq!(config.vpr.calibration, crate::vpr::Calibration::Raw);
+        assert_eq!(config.vpr.threshold(), 0.70);
+        assert_eq!(config.vpr.g_xt, 0.5);
+        for (text, field) in [
+            ("calibration = \"zscore\"", "calibration"),
+            ("tau_c = 1.2", "tau_c"),
+            ("null_min_samples = 0", "null_min_samples"),
+            ("contradiction_agreement = -0.1", "contradiction_agreement"),
+            ("g_xo = -1.0", "g_xo"),
+        ] {
+            std::fs::write(&file, format!("[vpr]\n{text}\n")).unwrap();
+            let err = Config::load(Some(&file), Figment::new()).unwrap_err();
+            assert!(err.to_string().contains(field), "{text}: {err}");
+        }
+    }
 }

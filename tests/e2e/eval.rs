@@ -33,16 +33,29 @@ fn eval_gardens(datasets: &Path, out: &Path, extra: &[&str]) -> (serde_json::Val
 }
 
 /// (condition, method, R@1, R@5, MRR) of every row.
-fn recalls(value: &serde_json::Value) -> Vec<(String, String, f64, f64, f64)> {
+/// Recall and the precision figures of every method and condition.
+fn recalls(value: &serde_json::Value) -> Vec<(String, String, Vec<String>)> {
     let mut rows = Vec::new();
     for c in value["conditions"].as_array().unwrap() {
         for r in c["results"].as_array().unwrap() {
+            let p = &r["precision"];
+            let figures = [
+                &r["recall_at_1"],
+                &r["recall_at_5"],
+                &r["mrr"],
+                &p["answered"],
+                &p["false_top"],
+                &p["candidate_precision"],
+                &p["recall_at_full_precision"],
+            ];
             rows.push((
                 c["condition"].as_str().unwrap().to_string(),
                 r["method"].as_str().unwrap().to_string(),
-                r["recall_at_1"].as_f64().unwrap(),
-                r["recall_at_5"].as_f64().unwrap(),
-                r["mrr"].as_f64().unwrap(),
+                // Scores cross the wire as f32: compare to 4 decimals.
+                figures
+                    .iter()
+                    .map(|v| format!("{:.4}", v.as_f64().unwrap()))
+                    .collect(),
             ));
         }
     }
@@ -71,7 +84,14 @@ fn eval_on_gardens_daynight_reports_every_number() {
             .collect();
         assert_eq!(
             methods,
-            ["SCAL", "SCAL+OSRL", "SCAL+OGTL", "Full", "ORB-BoW"]
+            [
+                "SCAL",
+                "SCAL+OSRL",
+                "SCAL+OGTL",
+                "Full (no C)",
+                "Full",
+                "ORB-BoW"
+            ]
         );
         for r in results {
             let get = |k: &str| {
@@ -92,11 +112,39 @@ fn eval_on_gardens_daynight_reports_every_number() {
                 "descriptor"
             };
             assert!(r["stages_ms"][first_stage].as_f64().unwrap() > 0.0, "{r}");
+            // Precision at the operating point: every query has a match here.
+            let p = &r["precision"];
+            let count = |k: &str| {
+                p[k].as_u64()
+                    .unwrap_or_else(|| panic!("{k} missing in {p}"))
+            };
+            assert_eq!((count("queries"), count("with_match")), (10, 10), "{p}");
+            assert!(count("answered") <= 10 && count("false_top") <= count("answered"));
+            assert_eq!(count("false_no_match"), 0);
+            for k in [
+                "candidate_precision",
+                "recall_at_threshold",
+                "recall_at_full_precision",
+            ] {
+                assert!((0.0..=1.0).contains(&p[k].as_f64().unwrap()), "{k}: {p}");
+            }
+            assert!(p["recall_at_full_precision"].as_f64() <= Some(r1), "{p}");
+            assert_eq!(p["tops"].as_array().unwrap().len(), 10, "{p}");
+            assert!(!p["curve"].as_array().unwrap().is_empty(), "{p}");
         }
     }
+    assert_eq!(value["calibration"], "null");
+    assert!(value["threshold"]
+        .as_f64()
+        .is_some_and(|t| t > 0.0 && t < 1.0));
+    assert!(stdout.contains("recall at 100 % precision"), "{stdout}");
     let summary = std::fs::read_to_string(report.join("summary.md")).unwrap();
     assert!(summary.contains("| B15/D80 | SCAL |"), "{summary}");
-    for chart in ["accuracy_latency", "recall_per_condition"] {
+    for chart in [
+        "accuracy_latency",
+        "recall_per_condition",
+        "precision_recall",
+    ] {
         assert!(summary.contains(&format!("({chart}.png)")), "{summary}");
         let png = image::open(report.join(format!("{chart}.png"))).unwrap();
         assert_eq!((png.width(), png.height()), (800, 520));

@@ -68,7 +68,16 @@ fn texts(features: &proto::Features) -> Vec<String> {
 #[tokio::test(flavor = "multi_thread")]
 async fn rendered_text_is_read_back_and_grounds_a_match() {
     let dir = tempfile::tempdir().unwrap();
-    let server = Server::start_with_models(dir.path());
+    // A one-keyframe store has no null to calibrate against (fewer than
+    // `null_min_samples` eligible keyframes answer nothing): this test is
+    // about the text, so it uses the paper's raw rule.
+    let server = Server::start_with(
+        dir.path(),
+        &[
+            "HUMEM_PERCEPTION__ENABLED=true",
+            "HUMEM_VPR__CALIBRATION=raw",
+        ],
+    );
     let mut client = server.client().await;
 
     let board = rendered_text(&["EXIT 12B", "Gate B-214"]);

@@ -180,12 +180,16 @@ pub fn rank_timed<M: KeyframeMemory + ?Sized>(
     (ranked, times)
 }
 
-/// The candidates with `Λ > threshold` (strict), at most `max`, in the
-/// given (ranked) order.
+/// The candidates with `score > threshold` (strict), at most `max`, in the
+/// given (ranked) order. A threshold of 0 keeps every ranked candidate,
+/// those scoring 0 included: calibrated scores at or below the query's null
+/// median are exactly 0, and a client that asks for no threshold (the
+/// evaluation over `--server`, a person looking at a ranking) wants the
+/// whole ranking.
 pub fn select(ranked: Vec<RankedCandidate>, threshold: f32, max: usize) -> Vec<RankedCandidate> {
     ranked
         .into_iter()
-        .filter(|c| c.score > threshold)
+        .filter(|c| threshold <= 0.0 || c.score > threshold)
         .take(max)
         .collect()
 }
@@ -436,7 +440,11 @@ mod tests {
         assert_eq!(rows(select(ranked.clone(), 0.7, 5)), vec![0, 1, 2, 3]);
         assert_eq!(rows(select(ranked.clone(), 0.7, 2)), vec![0, 1]);
         assert_eq!(rows(select(ranked.clone(), 0.7, 0)), Vec::<usize>::new());
-        assert_eq!(rows(select(ranked, 0.99, 5)), Vec::<usize>::new());
+        assert_eq!(rows(select(ranked.clone(), 0.99, 5)), Vec::<usize>::new());
+        // Threshold 0: the whole ranking, zero scores included.
+        let mut with_zero = ranked;
+        with_zero.push(candidate(6, 0.5, 0.0));
+        assert_eq!(rows(select(with_zero, 0.0, 10)), vec![0, 1, 2, 3, 4, 5, 6]);
     }
 
     fn store_strategy() -> impl Strategy<Value = VecMemory> {
