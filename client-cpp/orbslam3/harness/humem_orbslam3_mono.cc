@@ -179,8 +179,8 @@ int main(int argc, char** argv)
     ORB_SLAM3::System SLAM(a.vocabulary, a.settings, ORB_SLAM3::System::MONOCULAR, false);
 
     // Feed the frames at a fixed rate: frame i is due at start + i / fps.
-    // Unless --realtime 1, a frame also waits until Local Mapping has taken
-    // the keyframes queued so far: on a loaded machine a real-time feed
+    // Unless --realtime 1, a frame also waits until Local Mapping is idle
+    // (its queue empty, no keyframe in work): on a loaded machine a real-time feed
     // outruns Local Mapping and tracking fails for reasons that have nothing
     // to do with place recognition (on 2 busy cores most frames were lost).
     ORB_SLAM3::LocalMapping* lm = SLAM.GetLocalMapper();
@@ -202,7 +202,9 @@ int main(int argc, char** argv)
         if(!a.realtime)
         {
             const std::chrono::steady_clock::time_point w0 = std::chrono::steady_clock::now();
-            WaitUntil([&]() { return lm->KeyframesInQueue() == 0; }, 10);
+            // Idle: nothing queued and not processing one (AcceptKeyFrames is
+            // false while Local Mapping works on a keyframe).
+            WaitUntil([&]() { return lm->KeyframesInQueue() == 0 && lm->AcceptKeyFrames(); }, 10);
             paceStart += std::chrono::duration<double>(std::chrono::steady_clock::now() - w0).count();
         }
         SLAM.TrackMonocular(im, ts[i]);
