@@ -174,9 +174,10 @@ int main(int argc, char** argv)
     for(size_t i = 0; i < n; ++i)
         indexOf[ts[i]] = i;
 
-    // The patch's event lines ("[ORB-SLAM3 event] ...") are at level VERBOSE.
-    ORB_SLAM3::Verbose::SetTh(ORB_SLAM3::Verbose::VERBOSITY_VERBOSE);
     ORB_SLAM3::System SLAM(a.vocabulary, a.settings, ORB_SLAM3::System::MONOCULAR, false);
+    // The patch's event lines ("[ORB-SLAM3 event] ...") are at level VERBOSE
+    // (after the constructor, which sets the level to QUIET).
+    ORB_SLAM3::Verbose::SetTh(ORB_SLAM3::Verbose::VERBOSITY_VERBOSE);
 
     // Feed the frames at a fixed rate: frame i is due at start + i / fps.
     // Unless --realtime 1, a frame also waits until Local Mapping is idle
