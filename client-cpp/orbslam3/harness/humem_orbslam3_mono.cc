@@ -224,7 +224,12 @@ int main(int argc, char** argv)
     bool drained = true;
     for(int pass = 0; pass < 2; ++pass)  // twice: loop closing can start a global BA
     {
-        drained = WaitUntil([&]() { return lm->KeyframesInQueue() == 0 && lc->KeyFramesInQueue() == 0; }, 120) && drained;
+        // Local Mapping idle (queue empty, no keyframe in work: its last BA
+        // moves keyframes, and Loop Closing's add of that keyframe is what
+        // sends the moved poses) and Loop Closing's queue empty.
+        drained = WaitUntil([&]() {
+            return lm->KeyframesInQueue() == 0 && lm->AcceptKeyFrames() && lc->KeyFramesInQueue() == 0;
+        }, 120) && drained;
         std::this_thread::sleep_for(std::chrono::milliseconds(1000));
         drained = WaitUntil([&]() { return !lc->isRunningGBA(); }, 300) && drained;
     }
