@@ -17,16 +17,22 @@
 //!   or a doubtful read says little. A pair whose best strings agree closely
 //!   (an OCR slip of a letter or two) counts as agreement.
 //! - **Absence** ([`absence`]): a distinctive object (one with distinctive
-//!   text) large enough to be seen, with no object of its class near its
-//!   place on the other side. It is looked for in both directions, since
-//!   either frame may be the one that shows the extra sign.
+//!   text) that the other frame should have seen, with no counterpart near
+//!   its place there: no object of its class that is unread or reads the
+//!   same. "Should have seen" is either size (at least `absence_min_area`
+//!   of the image) or legibility: the other frame read text near that place,
+//!   so its OCR worked there and would have read this sign too. Requiring one
+//!   of the two keeps OCR failures (night, fog, a sign too small to read in
+//!   one frame) from counting as absences. It is looked for in both
+//!   directions, since either frame may be the one that shows the extra
+//!   sign.
 
 use crate::keyframe::ObjectObservation;
 use crate::vpr::clip01;
 use crate::vpr::ogtl::TextProfile;
 use crate::vpr::osrl::spatial_kernel;
 use crate::vpr::params::VprParams;
-use crate::vpr::text::distinct_agreement;
+use crate::vpr::text::{distinct_agreement, is_generic};
 
 /// One pair of gated objects whose distinctive texts disagree.
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -153,11 +159,48 @@ pub fn text_contradiction(
     (clip01(num / den.max(1.0)), conflicts)
 }
 
-/// The distinctive objects of `side` with no object of their class at a
-/// compatible place (`G ≥ τ_g`) in `other`: `(index, w p)`, where `w` is the
-/// object's text weight and `p` its confidence. Objects smaller than
-/// `params.absence_min_area` are left out: too small to be sure the other
-/// frame would have seen them.
+/// Whether `o` has a counterpart in `other`: an object of its class at a
+/// compatible place (`G ≥ τ_g`) that
+/// - carries no text (unread: its identity is unknown, so it cannot speak
+///   against `o`), or
+/// - reads what `o` reads (some pair of their strings has
+///   [`distinct_agreement`] `≥ τ_x`, partial reads included), or
+/// - reads something else that is not only generic words: then the two
+///   texts disagree, and that is [`text_contradiction`]'s to weigh, not
+///   counted twice here.
+///
+/// A nearby object of the class that reads only generic words ("OPEN",
+/// "STOP") where `o` reads something else is no counterpart: the place
+/// holds a different sign.
+fn has_counterpart(o: &ObjectObservation, other: &[ObjectObservation], params: &VprParams) -> bool {
+    other.iter().any(|c| {
+        c.class_name == o.class_name
+            && spatial_kernel(o, c, params) >= params.tau_g
+            && (c.texts.is_empty()
+                || c.texts.iter().any(|v| {
+                    !is_generic(&v.text, params)
+                        || o.texts.iter().any(|u| {
+                            distinct_agreement(&u.text, &v.text) >= params.contradiction_agreement
+                        })
+                }))
+    })
+}
+
+/// Whether `other` should have seen `o`: `o` covers at least
+/// `params.absence_min_area` of the image, or `other` read text on an
+/// object at a compatible place (`G ≥ τ_g`), so its OCR could read there.
+fn should_be_seen(o: &ObjectObservation, other: &[ObjectObservation], params: &VprParams) -> bool {
+    o.area >= params.absence_min_area
+        || other
+            .iter()
+            .any(|c| !c.texts.is_empty() && spatial_kernel(o, c, params) >= params.tau_g)
+}
+
+/// The distinctive objects of `side` that `other` should have seen
+/// ([`should_be_seen`]) and that have no counterpart there
+/// ([`has_counterpart`]): `(index, w p)`, where `w` is the object's text
+/// weight and `p` its confidence; also the total `w p` of the objects that
+/// `other` should have seen, missing or not.
 fn missing_from(
     side: &[ObjectObservation],
     profile: &TextProfile,
@@ -168,14 +211,11 @@ fn missing_from(
     let mut missing = Vec::new();
     for (i, o) in side.iter().enumerate() {
         let w = profile.object_weight(i) * clip01(o.confidence);
-        if w <= 0.0 || o.area < params.absence_min_area {
+        if w <= 0.0 || !should_be_seen(o, other, params) {
             continue;
         }
         total += w;
-        let seen = other
-            .iter()
-            .any(|c| c.class_name == o.class_name && spatial_kernel(o, c, params) >= params.tau_g);
-        if !seen {
+        if !has_counterpart(o, other, params) {
             missing.push((i, w));
         }
     }
@@ -183,9 +223,9 @@ fn missing_from(
 }
 
 /// `X_o` for one candidate: in each direction, the weight of the missing
-/// distinctive objects over the weight of all distinctive objects of that
-/// side (see [`missing_from`]); `X_o` is the larger of the two (0 when
-/// neither side has a distinctive object).
+/// distinctive objects over the weight of the distinctive objects of that
+/// side that the other should have seen (see [`missing_from`]); `X_o` is
+/// the larger of the two (0 when there are none).
 pub fn absence(
     query_objects: &[ObjectObservation],
     query_profile: &TextProfile,
@@ -370,12 +410,16 @@ mod tests {
         let r = run(&[], &q);
         assert_eq!(r.absence, 1.0);
         assert!(!r.missing[0].in_query);
-        // Too small to be sure it would be seen: not counted.
+        // Too small to be sure it would be seen, and nothing read near its
+        // place on the other side: not counted.
         let small = [sign(0.3, 0.005, &[("AAAA 1111", 1.0)])];
         assert_eq!(run(&small, &[]).absence, 0.0);
-        // A sign of the same class near it, even unread, is a counterpart.
+        // A sign of the same class near it, unread, is a counterpart.
         let unread = [object("sign", 0.5, 0.35, 0.5, 0.05)];
         assert_eq!(run(&q, &unread).absence, 0.0);
+        // So is one that reads the same, or part of it.
+        let partial = [sign(0.35, 0.05, &[("1111", 0.9)])];
+        assert_eq!(run(&q, &partial).absence, 0.0);
         // Two distinctive signs, one missing: 0.833333 / 1.666667 = 0.5.
         let two = [
             sign(0.2, 0.05, &[("AAAA 1111", 1.0)]),
@@ -383,6 +427,58 @@ mod tests {
         ];
         let one = [sign(0.2, 0.05, &[("AAAA 1111", 1.0)])];
         assert!(close(run(&two, &one).absence, 0.5));
+    }
+
+    #[test]
+    fn a_sign_that_reads_otherwise_is_no_counterpart() {
+        // The query shows a distinctive sign (D 0.833333, area 0.05) where
+        // the candidate's sign reads only "EXIT" (generic, D 0.023333) at
+        // 0.05 of the width: the place holds another sign. Query side:
+        // total 0.833333, missing 0.833333 → 1. Candidate side: EXIT's
+        // neighbour reads a non-generic text, a counterpart (X_t weighs that
+        // pair) → 0. X_o = 1, and with g_xt = 0, C = 0.5 · 1 = 0.5.
+        let q = [sign(0.3, 0.05, &[("AAAA 1111", 1.0)])];
+        let c = [sign(0.35, 0.05, &[("EXIT", 1.0)])];
+        let no_text = VprParams {
+            g_xt: 0.0,
+            ..VprParams::default()
+        };
+        let r = contradiction(&q, &profile(&q), &c, &profile(&c), &no_text);
+        assert_eq!(r.absence, 1.0, "{r:?}");
+        assert!(close(r.score, 0.5));
+        assert_eq!(r.missing.len(), 1);
+        assert!(r.missing[0].in_query);
+        // Two distinctive signs that disagree are X_t's, not absences.
+        let other = [sign(0.35, 0.05, &[("BBBB 2222", 1.0)])];
+        let r = contradiction(&q, &profile(&q), &other, &profile(&other), &no_text);
+        assert_eq!(r.absence, 0.0, "{r:?}");
+    }
+
+    #[test]
+    fn small_signs_count_where_the_other_side_read_text() {
+        // A street-name sign (area 0.006, under absence_min_area) beside a
+        // STOP sign that both frames read; the candidate reads only STOP.
+        // Near KING AVE (x 0.8 against 0.84: G ≈ 0.987) the candidate read
+        // text, so it would have read KING AVE: missing. Query side: KING
+        // AVE has D = (0.3 + 0.5 · 7/12)(0.5 + 0.5) = 0.591667; STOP is
+        // generic, D = (0.3 + 0.5 · 4/12) · 0.05 = 0.023333, and has its
+        // counterpart. X_o = 0.591667 / 0.615 = 0.962060.
+        let q = [
+            sign(0.8, 0.006, &[("KING AVE", 0.95)]),
+            sign(0.84, 0.003, &[("STOP", 0.97)]),
+        ];
+        let c = [sign(0.84, 0.002, &[("STOP", 1.0)])];
+        let r = run(&q, &c);
+        let w_king = 0.591667 * 1.0;
+        let w_stop = 0.023333;
+        assert!(close(r.absence, w_king / (w_king + w_stop)), "{r:?}");
+        assert_eq!(r.missing.len(), 1);
+        assert_eq!(r.missing[0].object, 0);
+        // Where the candidate read nothing near it, the small sign may just
+        // be unreadable there: not counted (a STOP far away does not help).
+        let far = [sign(0.1, 0.002, &[("STOP", 1.0)])];
+        assert_eq!(run(&q[..1], &far).absence, 0.0);
+        assert_eq!(run(&q[..1], &[]).absence, 0.0);
     }
 
     proptest! {

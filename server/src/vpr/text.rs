@@ -111,6 +111,15 @@ pub fn distinct_agreement(a: &str, b: &str) -> f32 {
     string_similarity(&ra, &rb)
 }
 
+/// Whether every token of the normalised `text` is one of
+/// `params.generic_words` ("OPEN", "NO PARKING"): such a string names no
+/// place (an empty string is generic too).
+pub fn is_generic(text: &str, params: &VprParams) -> bool {
+    normalize(text)
+        .split_whitespace()
+        .all(|t| params.is_generic_word(t))
+}
+
 /// Compact length at which the length term saturates.
 const LENGTH_SATURATION: usize = 12;
 /// Below this many stored keyframes, document frequencies say nothing and
@@ -164,7 +173,7 @@ pub fn distinctiveness(
         }
     };
     let d = base * (0.5 + 0.5 * rarity);
-    if n.split_whitespace().all(|t| params.is_generic_word(t)) {
+    if is_generic(text, params) {
         d * GENERIC_FACTOR
     } else {
         d
