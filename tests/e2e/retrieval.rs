@@ -332,3 +332,93 @@ async fn distinctive_text_tells_look_alike_places_apart() {
         (0.0, 0.0, 0.0)
     );
 }
+
+#[tokio::test(flavor = "multi_thread")]
+async fn a_generic_sign_where_a_distinctive_one_should_be_speaks_against() {
+    let dir = tempfile::tempdir().unwrap();
+    let server = Server::start(dir.path());
+    let mut client = server.client().await;
+    let mut world = World::new(33, 3);
+    // Two look-alike corridors: one with the query's street-name sign beside
+    // its STOP sign, one where only the STOP sign is read (the other sign
+    // is not there). The street-name sign is small (2 % of the image), but
+    // the second corridor read text right beside its place, so it would
+    // have read it too.
+    let look = world.view(0, 0.0);
+    let corridor = |kf: u64, signs: Vec<proto::ObjectObservation>| {
+        scenes::keyframe(
+            "r",
+            "s",
+            [kf, kf * 200, 0],
+            scenes::features(look.clone(), 0, signs),
+        )
+    };
+    let both = || {
+        vec![
+            scenes::sign("KING AVE", 0.8, 0.25),
+            scenes::sign("STOP", 0.84, 0.35),
+        ]
+    };
+    let others: Vec<proto::Keyframe> = (3..33u64)
+        .map(|place| {
+            scenes::keyframe(
+                "r",
+                "s",
+                [place, place * 200, 0],
+                scenes::features(world.view(place as usize, 0.3), 1, vec![]),
+            )
+        })
+        .collect();
+    insert_all(
+        &mut client,
+        [
+            corridor(1, vec![scenes::sign("STOP", 0.84, 0.35)]),
+            corridor(2, both()),
+        ]
+        .into_iter()
+        .chain(others),
+    )
+    .await;
+    let mut query = query_stored("r", "s", 0);
+    query.keyframe_id = None;
+    query.frame_id = Some(50_000);
+    query.threshold = Some(0.0);
+    query.content = Some(proto::query_request::Content::Features(
+        scenes::features_of(&corridor(9, both())),
+    ));
+    let full = client.query(query.clone()).await.unwrap().into_inner();
+    let find = |reply: &proto::QueryResponse, kf: u64| {
+        let c = reply
+            .candidates
+            .iter()
+            .find(|c| c.keyframe_id == kf)
+            .unwrap_or_else(|| panic!("keyframe {kf} not proposed: {reply:?}"));
+        (c.score, c.evidence.clone().unwrap())
+    };
+    assert_eq!(full.candidates[0].keyframe_id, 2);
+    let (matching, e) = find(&full, 2);
+    assert_eq!(e.contradiction, 0.0, "{e:?}");
+    let (without_sign, e) = find(&full, 1);
+    // KING AVE is missing, STOP is not.
+    // In a store of 32 keyframes STOP is in 2 (rarity ln 16 / ln 32 = 0.8):
+    // D = 0.466667 · 0.9 · 0.05 = 0.021; KING AVE is in 1: D = 0.591667.
+    // X_o = 0.591667 · 0.9 / ((0.591667 + 0.021) · 0.9) = 0.965724.
+    assert!((e.object_absence - 0.965724).abs() < 1e-4, "{e:?}");
+    assert_eq!(e.missing_objects.len(), 1);
+    assert!(e.missing_objects[0].in_query);
+    assert_eq!(e.missing_objects[0].class_name, "sign");
+    assert!(without_sign < matching);
+    assert!(
+        without_sign < e.scene_confidence * (1.0 - 0.5 * 0.96) + 0.05,
+        "{without_sign} {e:?}"
+    );
+    // Without the evidence against, the two corridors are nearly alike.
+    query.layers = proto::Layers::FullSupportOnly as i32;
+    let paper = client.query(query).await.unwrap().into_inner();
+    let (supported_only, e) = find(&paper, 1);
+    assert_eq!(e.object_absence, 0.0);
+    assert!(
+        without_sign < supported_only - 0.3,
+        "{without_sign} vs {supported_only}"
+    );
+}
