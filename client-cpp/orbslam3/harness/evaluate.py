@@ -246,6 +246,20 @@ def evaluate_run(rd, gt, frames):
         est = np.array([k["p"] for k in big])
         ref = np.array([gt[k["index"]][1] for k in big])
         res["ate_m"] = umeyama_rmse(est, ref)
+    # And over every map of at least 3 keyframes, each Sim3-aligned on its
+    # own, RMSE over all their keyframes. A run that ends in several maps
+    # has short maps that drift little, so compare ATEs of runs with the
+    # same number of maps (or this pooled one together with "maps at end").
+    sq, n = 0.0, 0
+    for m in maps.values():
+        if len(m) >= 3:
+            est = np.array([k["p"] for k in m])
+            ref = np.array([gt[k["index"]][1] for k in m])
+            sq += umeyama_rmse(est, ref) ** 2 * len(m)
+            n += len(m)
+    if n:
+        res["ate_all_m"] = math.sqrt(sq / n)
+        res["ate_all_keyframes"] = n
 
     if res["mode"] == "humem":
         r = store_check(os.path.join(rd, "store.jsonl"), kfs)
@@ -273,21 +287,37 @@ def main():
     results.sort(key=lambda r: (r["mode"] != "humem", int(r["run"]) if str(r["run"]).isdigit() else 0))
 
     print("| run | keyframes | loop queries | candidates to geometric verification (true) | loops (true) "
-          "| merges (true) | relocalisations (of attempts) | maps at end | KF ATE, Sim3 RMSE (largest map) | store = ORB-SLAM3 |")
-    print("| --- | --- | --- | --- | --- | --- | --- | --- | --- | --- |")
+          "| merges (true) | relocalisations (of attempts) | maps at end | KF ATE, Sim3 RMSE (largest map) "
+          "| KF ATE (every map) | store = ORB-SLAM3 |")
+    print("| --- | --- | --- | --- | --- | --- | --- | --- | --- | --- | --- |")
     for r in results:
         name = "%s %s" % ("HuMem" if r["mode"] == "humem" else "DBoW2" if r["mode"] == "dbow2" else r["mode"], r["run"])
         if "error" in r:
-            print("| %s | %s |  |  |  |  |  |  |  |  |" % (name, r["error"]))
+            print("| %s | %s |  |  |  |  |  |  |  |  |  |" % (name, r["error"]))
             continue
         q = str(r["queries"])
         if "humem_answered" in r:
             q += " (answered %d)" % r["humem_answered"]
         ate = "%.2f m (%d KFs)" % (r["ate_m"], r["ate_map_keyframes"]) if "ate_m" in r else "—"
+        ate_all = "%.2f m (%d KFs)" % (r["ate_all_m"], r["ate_all_keyframes"]) if "ate_all_m" in r else "—"
         reloc = "%d of %d" % (len(r["relocalisations"]), r["reloc_attempts"])
-        print("| %s | %d | %s | %d (%d) | %s | %s | %s | %d | %s | %s |" % (
+        print("| %s | %d | %s | %d (%d) | %s | %s | %s | %d | %s | %s | %s |" % (
             name, r["keyframes"], q, r["candidates"], r["candidates_true"], fmt_pairs(r["loops"]),
-            fmt_pairs(r["merges"]), reloc, r["maps"], ate, r.get("store", "—")))
+            fmt_pairs(r["merges"]), reloc, r["maps"], ate, ate_all, r.get("store", "—")))
+    print()
+    print("Per mode, all runs: accepted loops and merges (false), candidates to geometric verification (true), "
+          "relocalisations, runs whose store matched, median KF ATE of the runs that ended in one map:")
+    for mode in sorted({r["mode"] for r in results if "error" not in r}):
+        rs = [r for r in results if r["mode"] == mode and "error" not in r]
+        acc = [p for r in rs for p in r["loops"] + r["merges"]]
+        one = sorted(r["ate_m"] for r in rs if r["maps"] == 1 and "ate_m" in r)
+        med = "%.2f m (%d runs)" % (float(np.median(one)), len(one)) if one else "no run"
+        stores = "; store matched in %d of %d" % (sum(bool(r.get("store_ok")) for r in rs), len(rs)) \
+            if mode == "humem" else ""
+        print("- %s, %d runs: %d accepted (%d false); %d candidates (%d true); %d relocalisations; "
+              "one-map ATE %s%s" % (mode, len(rs), len(acc), sum(not p["true"] for p in acc),
+                                    sum(r["candidates"] for r in rs), sum(r["candidates_true"] for r in rs),
+                                    sum(len(r["relocalisations"]) for r in rs), med, stores))
     print()
     print("Accepted loops and merges (source frames; ground-truth distance and angle between them):")
     for r in results:
