@@ -18,8 +18,10 @@
 //!   (an OCR slip of a letter or two) counts as agreement.
 //! - **Absence** ([`absence`]): a distinctive object (one with distinctive
 //!   text) that the other frame should have seen, with no counterpart near
-//!   its place there: no object of its class that is unread or reads the
-//!   same. "Should have seen" is either size (at least `absence_min_area`
+//!   its place there: no object of its class that is unread, reads the
+//!   same, or reads another distinctive text (a disagreement, left to the
+//!   text term); a sign there that reads only generic words is none.
+//!   "Should have seen" is either size (at least `absence_min_area`
 //!   of the image) or legibility: the other frame read text near that place,
 //!   so its OCR worked there and would have read this sign too. Requiring one
 //!   of the two keeps OCR failures (night, fog, a sign too small to read in
