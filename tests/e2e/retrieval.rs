@@ -14,6 +14,56 @@ fn candidate_ids(reply: &proto::QueryResponse) -> Vec<(String, u64)> {
         .collect()
 }
 
+/// Keyframe `kf` of robot "r" at the look-alike place `look`, showing
+/// `signs` (the look-alike tests' corridors differ only by their signs).
+fn look_alike(look: &[f32], kf: u64, signs: Vec<proto::ObjectObservation>) -> proto::Keyframe {
+    scenes::keyframe(
+        "r",
+        "s",
+        [kf, kf * 200, 0],
+        scenes::features(look.to_vec(), 0, signs),
+    )
+}
+
+/// Thirty other places (keyframes 3-32) that fill the store, so a query's
+/// null is known (a store smaller than `null_min_samples` calibrates
+/// nothing).
+fn other_places(world: &mut World) -> Vec<proto::Keyframe> {
+    (3..33u64)
+        .map(|place| {
+            scenes::keyframe(
+                "r",
+                "s",
+                [place, place * 200, 0],
+                scenes::features(world.view(place as usize, 0.3), 1, vec![]),
+            )
+        })
+        .collect()
+}
+
+/// A query of robot "r" by the features of `keyframe`, far from every
+/// stored frame, returning the whole ranking (threshold 0).
+fn query_like(keyframe: &proto::Keyframe) -> proto::QueryRequest {
+    let mut query = query_stored("r", "s", 0);
+    query.keyframe_id = None;
+    query.frame_id = Some(50_000);
+    query.threshold = Some(0.0);
+    query.content = Some(proto::query_request::Content::Features(
+        scenes::features_of(keyframe),
+    ));
+    query
+}
+
+/// The score and evidence of keyframe `kf` in `reply`.
+fn score_of(reply: &proto::QueryResponse, kf: u64) -> (f32, proto::Evidence) {
+    let c = reply
+        .candidates
+        .iter()
+        .find(|c| c.keyframe_id == kf)
+        .unwrap_or_else(|| panic!("keyframe {kf} not proposed: {reply:?}"));
+    (c.score, c.evidence.clone().unwrap())
+}
+
 #[tokio::test(flavor = "multi_thread")]
 async fn revisited_places_are_found_first_and_neighbours_are_excluded() {
     let dir = tempfile::tempdir().unwrap();
@@ -235,28 +285,10 @@ async fn distinctive_text_tells_look_alike_places_apart() {
     let server = Server::start(dir.path());
     let mut client = server.client().await;
     let mut world = World::new(33, 3);
-    // Two corridors that look the same; only the shop sign differs. Thirty
-    // other places fill the store, so the query's null is known (a store
-    // smaller than `null_min_samples` calibrates nothing).
+    // Two corridors that look the same; only the shop sign differs.
     let look = world.view(0, 0.0);
-    let corridor = |kf: u64, text: &str| {
-        scenes::keyframe(
-            "r",
-            "s",
-            [kf, kf * 200, 0],
-            scenes::features(look.clone(), 0, vec![scenes::sign(text, 0.5, 0.4)]),
-        )
-    };
-    let others: Vec<proto::Keyframe> = (3..33u64)
-        .map(|place| {
-            scenes::keyframe(
-                "r",
-                "s",
-                [place, place * 200, 0],
-                scenes::features(world.view(place as usize, 0.3), 1, vec![]),
-            )
-        })
-        .collect();
+    let corridor = |kf: u64, text: &str| look_alike(&look, kf, vec![scenes::sign(text, 0.5, 0.4)]);
+    let others = other_places(&mut world);
     insert_all(
         &mut client,
         [
@@ -267,21 +299,7 @@ async fn distinctive_text_tells_look_alike_places_apart() {
         .chain(others),
     )
     .await;
-    let mut query = query_stored("r", "s", 0);
-    query.keyframe_id = None;
-    query.frame_id = Some(50_000);
-    query.threshold = Some(0.0);
-    query.content = Some(proto::query_request::Content::Features(
-        scenes::features_of(&corridor(9, "LUNA BAKERY 48")),
-    ));
-    let score_of = |reply: &proto::QueryResponse, kf: u64| {
-        let c = reply
-            .candidates
-            .iter()
-            .find(|c| c.keyframe_id == kf)
-            .unwrap_or_else(|| panic!("keyframe {kf} not proposed: {reply:?}"));
-        (c.score, c.evidence.clone().unwrap())
-    };
+    let mut query = query_like(&corridor(9, "LUNA BAKERY 48"));
 
     let full = client.query(query.clone()).await.unwrap().into_inner();
     assert_eq!(full.candidates[0].keyframe_id, 2);
@@ -345,60 +363,29 @@ async fn a_generic_sign_where_a_distinctive_one_should_be_speaks_against() {
     // the second corridor read text right beside its place, so it would
     // have read it too.
     let look = world.view(0, 0.0);
-    let corridor = |kf: u64, signs: Vec<proto::ObjectObservation>| {
-        scenes::keyframe(
-            "r",
-            "s",
-            [kf, kf * 200, 0],
-            scenes::features(look.clone(), 0, signs),
-        )
-    };
     let both = || {
         vec![
             scenes::sign("KING AVE", 0.8, 0.25),
             scenes::sign("STOP", 0.84, 0.35),
         ]
     };
-    let others: Vec<proto::Keyframe> = (3..33u64)
-        .map(|place| {
-            scenes::keyframe(
-                "r",
-                "s",
-                [place, place * 200, 0],
-                scenes::features(world.view(place as usize, 0.3), 1, vec![]),
-            )
-        })
-        .collect();
+    let others = other_places(&mut world);
     insert_all(
         &mut client,
         [
-            corridor(1, vec![scenes::sign("STOP", 0.84, 0.35)]),
-            corridor(2, both()),
+            look_alike(&look, 1, vec![scenes::sign("STOP", 0.84, 0.35)]),
+            look_alike(&look, 2, both()),
         ]
         .into_iter()
         .chain(others),
     )
     .await;
-    let mut query = query_stored("r", "s", 0);
-    query.keyframe_id = None;
-    query.frame_id = Some(50_000);
-    query.threshold = Some(0.0);
-    query.content = Some(proto::query_request::Content::Features(
-        scenes::features_of(&corridor(9, both())),
-    ));
+    let mut query = query_like(&look_alike(&look, 9, both()));
     let full = client.query(query.clone()).await.unwrap().into_inner();
-    let find = |reply: &proto::QueryResponse, kf: u64| {
-        let c = reply
-            .candidates
-            .iter()
-            .find(|c| c.keyframe_id == kf)
-            .unwrap_or_else(|| panic!("keyframe {kf} not proposed: {reply:?}"));
-        (c.score, c.evidence.clone().unwrap())
-    };
     assert_eq!(full.candidates[0].keyframe_id, 2);
-    let (matching, e) = find(&full, 2);
+    let (matching, e) = score_of(&full, 2);
     assert_eq!(e.contradiction, 0.0, "{e:?}");
-    let (without_sign, e) = find(&full, 1);
+    let (without_sign, e) = score_of(&full, 1);
     // KING AVE is missing, STOP is not.
     // In a store of 32 keyframes STOP is in 2 (rarity ln 16 / ln 32 = 0.8):
     // D = 0.466667 · 0.9 · 0.05 = 0.021; KING AVE is in 1: D = 0.591667.
@@ -415,7 +402,7 @@ async fn a_generic_sign_where_a_distinctive_one_should_be_speaks_against() {
     // Without the evidence against, the two corridors are nearly alike.
     query.layers = proto::Layers::FullSupportOnly as i32;
     let paper = client.query(query).await.unwrap().into_inner();
-    let (supported_only, e) = find(&paper, 1);
+    let (supported_only, e) = score_of(&paper, 1);
     assert_eq!(e.object_absence, 0.0);
     assert!(
         without_sign < supported_only - 0.3,

@@ -239,26 +239,24 @@ def evaluate_run(rd, gt, frames):
         res["humem_queries"] = int(counters.get("humem_loop_queries", "0"))
         res["humem_pose_updates"] = int(counters.get("humem_pose_updates", "0"))
 
-    # Keyframe ATE on the largest map (monocular: Sim3 alignment).
-    big = max(maps.values(), key=len)
-    res["ate_map_keyframes"] = len(big)
-    if len(big) >= 3:
-        est = np.array([k["p"] for k in big])
-        ref = np.array([gt[k["index"]][1] for k in big])
-        res["ate_m"] = umeyama_rmse(est, ref)
-    # And over every map of at least 3 keyframes, each Sim3-aligned on its
-    # own, RMSE over all their keyframes. A run that ends in several maps
+    # Keyframe ATE (monocular: Sim3 alignment) of every map of at least 3
+    # keyframes, each aligned on its own: reported for the largest map, and
+    # as the RMSE over all their keyframes. A run that ends in several maps
     # has short maps that drift little, so compare ATEs of runs with the
-    # same number of maps (or this pooled one together with "maps at end").
-    sq, n = 0.0, 0
-    for m in maps.values():
+    # same number of maps (or the pooled one together with "maps at end").
+    ate = {}
+    for map_id, m in maps.items():
         if len(m) >= 3:
             est = np.array([k["p"] for k in m])
             ref = np.array([gt[k["index"]][1] for k in m])
-            sq += umeyama_rmse(est, ref) ** 2 * len(m)
-            n += len(m)
-    if n:
-        res["ate_all_m"] = math.sqrt(sq / n)
+            ate[map_id] = umeyama_rmse(est, ref)
+    big = max(maps, key=lambda map_id: len(maps[map_id]))
+    res["ate_map_keyframes"] = len(maps[big])
+    if big in ate:
+        res["ate_m"] = ate[big]
+    if ate:
+        n = sum(len(maps[map_id]) for map_id in ate)
+        res["ate_all_m"] = math.sqrt(sum(e ** 2 * len(maps[map_id]) for map_id, e in ate.items()) / n)
         res["ate_all_keyframes"] = n
 
     if res["mode"] == "humem":
