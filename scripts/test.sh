@@ -1,13 +1,15 @@
 #!/usr/bin/env bash
-# The project's test command (README "Test"): installs the models if they
-# are missing, checks the model converter on real pictures, then formatting,
-# lints and every Rust test, unit and end-to-end (the e2e tests start the
+# The project's test command (README "Test"): installs the Debian packages
+# and the models if they are missing, checks the model converter on real
+# pictures, then formatting, lints and every Rust test, unit and end-to-end (the e2e tests start the
 # real `humem` binary and run the real models), then the C++ client's tests
 # against that binary, and the deployment files checked with the real
 # Prometheus, promtool and systemd-analyze.
 set -euo pipefail
 cd "$(dirname "$0")/.."
 
+echo "== system packages (scripts/setup-system.sh test)"
+scripts/setup-system.sh test
 echo "== models (scripts/setup-models.sh)"
 scripts/setup-models.sh
 echo "== model tools tests"

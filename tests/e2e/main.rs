@@ -10,6 +10,7 @@ mod detector;
 mod durability;
 mod errors;
 mod eval;
+mod fidelity;
 mod images;
 mod latest_wins;
 mod maintenance;
