@@ -7,8 +7,9 @@
 //! and OGTL on the top K), over the real in-memory index, so the ratio
 //! between them is the cost of everything that is not reading descriptors.
 //!
-//! Keyframes carry 16 scene classes (the default `store.scene_top_k`) and
-//! four objects, two with text. Run with `cargo bench -p humem --bench rank`.
+//! Keyframes carry 16 scene classes (the default `store.scene_top_k`),
+//! four objects, two with text, and an appearance thumbnail, which SCAL
+//! scans beside the descriptor (`vpr.appearance_weight`). Run with `cargo bench -p humem --bench rank`.
 
 use std::hint::black_box;
 
@@ -61,6 +62,9 @@ fn features(rng: &mut Rng, dim: usize, place: usize) -> Features {
             object("building", rng.next(), None),
             object("street_light", rng.next(), None),
         ],
+        appearance: (0..vpr::appearance::LEN)
+            .map(|_| ((rng.next() - 0.5) * 120.0) as i8)
+            .collect(),
     }
 }
 

@@ -88,7 +88,8 @@ pub struct ObjectObservation {
 }
 
 /// What perception extracts from one image: the global descriptor `e`, the
-/// scene-class distribution `S` and the objects `O`.
+/// scene-class distribution `S`, the objects `O` and the appearance
+/// thumbnail.
 #[derive(Debug, Clone, PartialEq, Default, Serialize, Deserialize)]
 pub struct Features {
     /// Global descriptor, L2-normalised.
@@ -96,6 +97,12 @@ pub struct Features {
     /// Top entries of the scene-class distribution, highest first.
     pub scene: Vec<SceneClass>,
     pub objects: Vec<ObjectObservation>,
+    /// Appearance thumbnail ([`crate::vpr::appearance`]): the image in grey
+    /// at 64×48, patch-normalised, as `i8`, row-major; empty when none.
+    /// Last, so that records of format version 1 read as version 2 with an
+    /// empty thumbnail (see `store::codec`).
+    #[serde(default)]
+    pub appearance: Vec<i8>,
 }
 
 /// A semantic keyframe as stored.

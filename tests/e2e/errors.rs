@@ -55,6 +55,10 @@ async fn bad_requests_are_refused_with_the_field_named_and_change_nothing() {
             Box::new(|k| features(k).global_descriptor = vec![0.0; 64]),
         ),
         (
+            "keyframe.features.appearance: 100 bytes, expected none or 3072 (64x48)",
+            Box::new(|k| features(k).appearance = vec![1; 100]),
+        ),
+        (
             "keyframe.features.objects[0].confidence: 1.5 is outside [0, 1]",
             Box::new(|k| features(k).objects[0].confidence = 1.5),
         ),

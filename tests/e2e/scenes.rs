@@ -108,6 +108,7 @@ pub fn features(
             probability: 0.6,
         }],
         objects,
+        appearance: vec![],
     }
 }
 

@@ -119,6 +119,7 @@ pub fn timings(timings: &[(&'static str, Duration)]) -> Vec<proto::StageTiming> 
 pub fn features(f: &Features) -> proto::Features {
     proto::Features {
         global_descriptor: f.descriptor.clone(),
+        appearance: f.appearance.iter().map(|&v| v as u8).collect(),
         scene: f
             .scene
             .iter()

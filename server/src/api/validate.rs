@@ -181,11 +181,28 @@ pub fn features(field: &str, f: &proto::Features, limits: &Limits) -> Result<Fea
         .enumerate()
         .map(|(i, o)| object(&format!("{field}.objects[{i}]"), o))
         .collect::<Result<_>>()?;
+    let appearance = appearance(&format!("{field}.appearance"), &f.appearance)?;
     Ok(Features {
         descriptor,
         scene,
         objects,
+        appearance,
     })
+}
+
+/// A thumbnail's bytes as the signed values they encode.
+fn appearance(field: &str, bytes: &[u8]) -> Result<Vec<i8>> {
+    if !bytes.is_empty() && bytes.len() != crate::vpr::appearance::LEN {
+        return Err(invalid(
+            field,
+            format!(
+                "{} bytes, expected none or {} (64x48)",
+                bytes.len(),
+                crate::vpr::appearance::LEN
+            ),
+        ));
+    }
+    Ok(bytes.iter().map(|&b| b as i8).collect())
 }
 
 fn descriptor(field: &str, values: &[f32]) -> Result<Vec<f32>> {

@@ -360,6 +360,7 @@ mod tests {
             calibration: "null".into(),
             max_candidates: 5,
             objects: crate::eval::run::ObjectSource::Models,
+            grey: false,
             conditions: vec![
                 ConditionResult {
                     condition: "clean".into(),

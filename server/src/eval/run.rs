@@ -83,6 +83,10 @@ pub struct EvalArgs {
     /// Leave out the ORB bag-of-words baseline.
     #[arg(long)]
     pub no_baseline: bool,
+    /// Send every image, stored and query, as 8-bit grey pixels (`GRAY8`,
+    /// ITU-R 601 luma), as ORB-SLAM3 does; in-process only.
+    #[arg(long)]
+    pub grey: bool,
 }
 
 /// Source of the objects of each image.
@@ -146,6 +150,8 @@ pub struct EvalReport {
     pub max_candidates: usize,
     /// Where the objects came from: `models` or `annotations`.
     pub objects: ObjectSource,
+    /// Whether every image was sent as grey pixels.
+    pub grey: bool,
     pub conditions: Vec<ConditionResult>,
 }
 
@@ -224,13 +230,40 @@ pub(super) fn image_bytes(
     let Some(d) = degradation else {
         return Ok(bytes);
     };
-    let image = image::load_from_memory(&bytes)
-        .with_context(|| format!("decoding {}", path.display()))?
-        .to_rgb8();
+    let image = decode(&bytes).with_context(|| format!("decoding {}", path.display()))?;
     let degraded = super::degrade::apply(&image, d);
     let mut png = Vec::new();
     degraded.write_to(&mut Cursor::new(&mut png), image::ImageFormat::Png)?;
     Ok(png)
+}
+
+/// An image file as the service decodes it (libjpeg-turbo for JPEGs).
+fn decode(bytes: &[u8]) -> Result<image::RgbImage, crate::perception::image::ImageError> {
+    crate::perception::image::decode(&crate::perception::image::EncodedImage {
+        encoding: crate::perception::image::Encoding::Auto,
+        data: bytes,
+        width: 0,
+        height: 0,
+        stride: 0,
+    })
+}
+
+/// The request image of a file: the file itself, or its grey pixels.
+fn image_input(data: Vec<u8>, grey: bool) -> anyhow::Result<ImageInput> {
+    if !grey {
+        return Ok(ImageInput::file(data));
+    }
+    let rgb = decode(&data)?;
+    Ok(ImageInput {
+        encoding: crate::perception::image::Encoding::Gray8,
+        data: rgb
+            .pixels()
+            .map(|p| crate::perception::appearance::luma(p.0))
+            .collect(),
+        width: rgb.width(),
+        height: rgb.height(),
+        stride: 0,
+    })
 }
 
 async fn perceive_all(
@@ -238,6 +271,7 @@ async fn perceive_all(
     paths: &[PathBuf],
     degradation: Option<&Degradation>,
     annotations: Option<&Catalog>,
+    grey: bool,
     what: &str,
 ) -> anyhow::Result<Vec<Perceived>> {
     let bar = progress(paths.len(), what);
@@ -246,7 +280,7 @@ async fn perceive_all(
         let data = image_bytes(path, degradation)?;
         let started = Instant::now();
         let extracted = perception
-            .extract(ImageInput::file(data))
+            .extract(image_input(data, grey)?)
             .await
             .with_context(|| format!("perceiving {}", path.display()))?;
         let decode = extracted
@@ -277,6 +311,8 @@ struct LocalDatabase {
     references: Vec<Perceived>,
     /// Ground-truth objects in place of the detector's, if asked.
     annotations: Option<Catalog>,
+    /// Images are sent as grey pixels.
+    grey: bool,
 }
 
 impl LocalDatabase {
@@ -284,12 +320,14 @@ impl LocalDatabase {
         perception: &Perception,
         dataset: &Dataset,
         annotations: Option<Catalog>,
+        grey: bool,
     ) -> anyhow::Result<LocalDatabase> {
         let references = perceive_all(
             perception,
             &dataset.references,
             None,
             annotations.as_ref(),
+            grey,
             "references",
         )
         .await?;
@@ -319,6 +357,7 @@ impl LocalDatabase {
             reference_of,
             references,
             annotations,
+            grey,
         })
     }
 
@@ -344,6 +383,7 @@ impl LocalDatabase {
                     &dataset.queries,
                     degradation,
                     self.annotations.as_ref(),
+                    self.grey,
                     &format!("queries {condition}"),
                 )
                 .await?;
@@ -499,10 +539,14 @@ pub async fn run(config: Config, args: EvalArgs) -> anyhow::Result<()> {
                 ObjectSource::Models => None,
                 ObjectSource::Annotations => Some(Catalog::find(&args.dataset)?),
             };
-            let database = LocalDatabase::build(&perception, &dataset, annotations).await?;
+            let database =
+                LocalDatabase::build(&perception, &dataset, annotations, args.grey).await?;
             Backend::Local(Box::new((perception, database)))
         }
         Some(url) => {
+            if args.grey {
+                anyhow::bail!("--grey runs in-process only, not with --server");
+            }
             if args.objects == ObjectSource::Annotations {
                 anyhow::bail!("--objects annotations replaces perception, so it runs in-process only, not with --server");
             }
@@ -533,6 +577,7 @@ pub async fn run(config: Config, args: EvalArgs) -> anyhow::Result<()> {
         max_candidates: point.max_candidates,
         min_frame_gap: (dataset.kind == Kind::Loop).then_some(dataset.min_frame_gap),
         objects: args.objects,
+        grey: args.grey,
         conditions: Vec::new(),
     };
     for degradation in conditions {

@@ -65,6 +65,9 @@ pub struct PerceptionConfig {
     pub detector: Option<DetectorConfig>,
     /// Text detection and recognition.
     pub ocr: Option<OcrConfig>,
+    /// Compute the appearance thumbnail of every image (no model; about
+    /// 1 ms). It counts in the score with `vpr.appearance_weight`.
+    pub appearance: bool,
 }
 
 impl Default for PerceptionConfig {
@@ -83,6 +86,7 @@ impl Default for PerceptionConfig {
             scene: Some(efficientnet("scene")),
             detector: None,
             ocr: Some(OcrConfig::default()),
+            appearance: true,
         }
     }
 }

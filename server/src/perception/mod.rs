@@ -4,10 +4,12 @@
 //! a batcher so that concurrent requests share inferences: the global
 //! descriptor and scene context (one inference when one model gives both),
 //! and OCR, whose text regions become `sign` objects when no object
-//! detector is configured. Decoding and resizing run on tokio's blocking
+//! detector is configured; and the appearance thumbnail, computed from the
+//! pixels without a model. Decoding and resizing run on tokio's blocking
 //! pool, inference on each model's own threads; the async runtime only
 //! waits. Knows nothing of gRPC.
 
+pub mod appearance;
 pub mod batcher;
 pub mod config;
 pub mod geometry;
@@ -105,6 +107,8 @@ pub struct Perception {
     detector: Option<Detector>,
     text_object_class: String,
     scene_top_k: usize,
+    /// Whether the appearance thumbnail is computed.
+    appearance: bool,
 }
 
 impl Perception {
@@ -193,6 +197,7 @@ impl Perception {
                 .map(|o| o.text_object_class.clone())
                 .unwrap_or_default(),
             scene_top_k,
+            appearance: config.appearance,
         })
     }
 
@@ -203,14 +208,21 @@ impl Perception {
         let started = Instant::now();
         let global_config = self.global.config.clone();
         let scene_config = self.scene.as_ref().map(|s| s.config.clone());
-        let (image, global_input, scene_input) = tokio::task::spawn_blocking(move || {
-            let image = image::decode(&input.encoded())?;
-            let global_input = model_input(&image, &global_config);
-            let scene_input = scene_config.map(|c| model_input(&image, &c));
-            Ok::<_, ImageError>((Arc::new(image), global_input, scene_input))
-        })
-        .await
-        .map_err(|e| PerceptionError::Output(format!("decoding task failed: {e}")))??;
+        let with_appearance = self.appearance;
+        let (image, global_input, scene_input, thumbnail) =
+            tokio::task::spawn_blocking(move || {
+                let image = image::decode(&input.encoded())?;
+                let global_input = model_input(&image, &global_config);
+                let scene_input = scene_config.map(|c| model_input(&image, &c));
+                let thumbnail = if with_appearance {
+                    appearance::thumbnail(&image)
+                } else {
+                    Vec::new()
+                };
+                Ok::<_, ImageError>((Arc::new(image), global_input, scene_input, thumbnail))
+            })
+            .await
+            .map_err(|e| PerceptionError::Output(format!("decoding task failed: {e}")))??;
         timings.push(("decode", started.elapsed()));
 
         let global = self.global.batcher.infer(global_input);
@@ -245,6 +257,7 @@ impl Perception {
                     .map(|(_, p)| top_classes(&p, self.scene_top_k))
                     .unwrap_or_default(),
                 objects,
+                appearance: thumbnail,
             },
             timings,
         })

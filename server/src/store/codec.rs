@@ -11,8 +11,10 @@
 
 use crate::keyframe::{KeyframeKey, SemanticKeyframe, SessionKey};
 
-/// Version of the record layout written by this build.
-pub const FORMAT_VERSION: u8 = 1;
+/// Version of the record layout written by this build. Version 2 added the
+/// appearance thumbnail as the last field of the features, which are the
+/// last field of a record.
+pub const FORMAT_VERSION: u8 = 2;
 
 /// Errors of decoding stored bytes.
 #[derive(Debug, thiserror::Error)]
@@ -81,6 +83,14 @@ pub fn decode_record(bytes: &[u8]) -> Result<SemanticKeyframe, CodecError> {
     match bytes.split_first() {
         None => Err(CodecError::Empty),
         Some((&FORMAT_VERSION, body)) => Ok(postcard::from_bytes(body)?),
+        // Version 1 lacks only the trailing thumbnail: postcard writes an
+        // empty `Vec` as one zero length byte.
+        Some((&1, body)) => {
+            let mut upgraded = Vec::with_capacity(body.len() + 1);
+            upgraded.extend_from_slice(body);
+            upgraded.push(0);
+            Ok(postcard::from_bytes(&upgraded)?)
+        }
         Some((&found, _)) => Err(CodecError::UnsupportedVersion { found }),
     }
 }
@@ -120,6 +130,7 @@ mod tests {
                         confidence: 1.0,
                     }],
                 }],
+                appearance: vec![-3, 0, 127],
             },
         }
     }
@@ -150,7 +161,7 @@ mod tests {
     #[test]
     fn layout_is_pinned() {
         // If this fails, the on-disk format changed: bump FORMAT_VERSION and
-        // keep a decoder for version 1 before updating these bytes.
+        // keep a decoder for the older versions before updating these bytes.
         let hex: String = encode_record(&sample())
             .iter()
             .map(|b| format!("{b:02x}"))
@@ -158,7 +169,21 @@ mod tests {
         assert_eq!(hex, GOLDEN);
     }
 
-    const GOLDEN: &str = "010272310173820207000000000000f83f02000000000000f03f000000000000000000000000000000c0000000000000f03f000000000000000000000000000000000000000000000000029a99193fcdcc4c3f01030000003f01047369676e6666663f0000803e0000003f0000003e0105422d3231340000803f";
+    #[test]
+    fn version_1_records_read_with_an_empty_thumbnail() {
+        let bytes: Vec<u8> = (0..GOLDEN_V1.len())
+            .step_by(2)
+            .map(|i| u8::from_str_radix(&GOLDEN_V1[i..i + 2], 16).unwrap())
+            .collect();
+        let mut expected = sample();
+        expected.features.appearance.clear();
+        assert_eq!(decode_record(&bytes).unwrap(), expected);
+    }
+
+    const GOLDEN: &str = "020272310173820207000000000000f83f02000000000000f03f000000000000000000000000000000c0000000000000f03f000000000000000000000000000000000000000000000000029a99193fcdcc4c3f01030000003f01047369676e6666663f0000803e0000003f0000003e0105422d3231340000803f03fd007f";
+
+    /// The sample, without its thumbnail, as version 1 wrote it.
+    const GOLDEN_V1: &str = "010272310173820207000000000000f83f02000000000000f03f000000000000000000000000000000c0000000000000f03f000000000000000000000000000000000000000000000000029a99193fcdcc4c3f01030000003f01047369676e6666663f0000803e0000003f0000003e0105422d3231340000803f";
 
     #[test]
     fn other_versions_are_refused() {

@@ -16,6 +16,7 @@ use std::collections::{BTreeMap, HashMap, HashSet};
 use crate::keyframe::{
     KeyframeKey, ObjectObservation, Pose, SceneClass, SemanticKeyframe, SessionKey,
 };
+use crate::vpr::appearance::AppearanceMatrix;
 use crate::vpr::{self, DescriptorMatrix, KeyframeMemory};
 
 /// A map: (robot, session, map id).
@@ -53,6 +54,8 @@ impl RowMeta {
 #[derive(Debug)]
 pub struct Index {
     matrix: DescriptorMatrix,
+    /// Appearance thumbnails, row-aligned with `matrix`.
+    appearance: AppearanceMatrix,
     rows: Vec<RowMeta>,
     by_key: HashMap<KeyframeKey, usize>,
     /// Keyframe id → row, per map: the temporal tracks.
@@ -66,6 +69,7 @@ impl Index {
     pub fn new(dim: usize) -> Self {
         Index {
             matrix: DescriptorMatrix::new(dim),
+            appearance: AppearanceMatrix::default(),
             rows: Vec::new(),
             by_key: HashMap::new(),
             tracks: HashMap::new(),
@@ -111,6 +115,11 @@ impl Index {
                 descriptor: self.matrix.row(row).to_vec(),
                 scene: meta.scene.clone(),
                 objects: meta.objects.clone(),
+                appearance: self
+                    .appearance
+                    .row(row)
+                    .map(|(thumbnail, _)| thumbnail.to_vec())
+                    .unwrap_or_default(),
             },
         }
     }
@@ -153,6 +162,7 @@ impl Index {
         }
         let row = self.matrix.push(&keyframe.features.descriptor);
         debug_assert_eq!(row, self.rows.len());
+        self.appearance.push(&keyframe.features.appearance);
         for text in distinct_texts(&keyframe.features.objects) {
             *self.text_df.entry(text).or_insert(0) += 1;
         }
@@ -189,6 +199,7 @@ impl Index {
         // referred to the last row.
         let last = self.rows.len() - 1;
         self.matrix.swap_remove(row);
+        self.appearance.swap_remove(row);
         self.rows.swap_remove(row);
         if row != last {
             let moved = &self.rows[row];
@@ -272,6 +283,10 @@ impl KeyframeMemory for Index {
         &self.matrix
     }
 
+    fn appearance(&self) -> &AppearanceMatrix {
+        &self.appearance
+    }
+
     fn scene(&self, row: usize) -> &[SceneClass] {
         &self.rows[row].scene
     }
@@ -311,6 +326,7 @@ mod tests {
             pose: Pose::default(),
             features: Features {
                 descriptor: vec![id as f32, 1.0],
+                appearance: vec![],
                 scene: vec![],
                 objects: vec![ObjectObservation {
                     class_name: "sign".into(),

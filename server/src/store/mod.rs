@@ -201,7 +201,9 @@ impl Store {
     }
 }
 
-/// Writes the format version into a new store, refuses a store of another one.
+/// Writes the format version into a new store, upgrades a store of an
+/// older version this build still reads (its records stay as they are and
+/// are read by their own version byte), and refuses one of a newer version.
 fn check_format(meta: &sled::Tree) -> Result<(), StoreError> {
     let supported = u32::from(codec::FORMAT_VERSION);
     match meta.get(META_FORMAT)? {
@@ -212,6 +214,10 @@ fn check_format(meta: &sled::Tree) -> Result<(), StoreError> {
         Some(v) => {
             let found = u32::from_be_bytes(v.as_ref().try_into().unwrap_or([0xff; 4]));
             if found == supported {
+                Ok(())
+            } else if (1..supported).contains(&found) {
+                meta.insert(META_FORMAT, &supported.to_be_bytes())?;
+                tracing::info!(from = found, to = supported, "store format upgraded");
                 Ok(())
             } else {
                 Err(StoreError::UnsupportedFormat { found, supported })

@@ -20,6 +20,7 @@ fn kf(robot: &str, session: &str, id: u64, map: u64) -> SemanticKeyframe {
         },
         features: Features {
             descriptor: vec![1.0, 0.0, id as f32],
+            appearance: vec![],
             scene: vec![],
             objects: vec![ObjectObservation {
                 class_name: "sign".into(),
@@ -231,4 +232,42 @@ async fn concurrent_writers_are_all_committed() {
     drop(store);
     let store = reopen(dir.path(), 0);
     assert_eq!(store.index().len(), 200);
+}
+
+#[tokio::test]
+async fn a_version_1_store_opens_upgraded_and_keeps_its_records() {
+    let dir = tempfile::tempdir().unwrap();
+    let old = kf("r", "s", 1, 0);
+    {
+        // What a version 1 build left: format 1 and a record without the
+        // trailing thumbnail (its encoding ends in the empty Vec's 0 byte).
+        let db = sled::open(dir.path()).unwrap();
+        let meta = db.open_tree(META_TREE).unwrap();
+        meta.insert(META_FORMAT, &1u32.to_be_bytes()).unwrap();
+        let mut v1 = codec::encode_record(&old);
+        assert_eq!(v1.pop(), Some(0));
+        v1[0] = 1;
+        db.open_tree(KEYFRAMES_TREE)
+            .unwrap()
+            .insert(codec::encode_key(&old.key), v1)
+            .unwrap();
+        db.flush().unwrap();
+    }
+    let store = reopen(dir.path(), 0);
+    assert_eq!(store.index().keyframe(0), old);
+    let mut new = kf("r", "s", 2, 0);
+    new.features.appearance = vec![5; crate::vpr::appearance::LEN];
+    store
+        .apply(Mutation::Insert(vec![new.clone()]))
+        .await
+        .unwrap();
+    drop(store);
+    let store = reopen(dir.path(), 0);
+    let row = store.index().row_of(&new.key).unwrap();
+    assert_eq!(store.index().keyframe(row), new);
+    let meta = store.db.open_tree(META_TREE).unwrap();
+    assert_eq!(
+        meta.get(META_FORMAT).unwrap().unwrap().as_ref(),
+        &2u32.to_be_bytes()
+    );
 }

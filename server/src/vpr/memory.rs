@@ -8,6 +8,7 @@
 //! [`VecMemory`] below.
 
 use crate::keyframe::{Features, ObjectObservation, SceneClass};
+use crate::vpr::appearance::AppearanceMatrix;
 use crate::vpr::matrix::DescriptorMatrix;
 use crate::vpr::text::normalize;
 
@@ -15,6 +16,8 @@ use crate::vpr::text::normalize;
 pub trait KeyframeMemory {
     /// The descriptors, one row per stored keyframe.
     fn descriptors(&self) -> &DescriptorMatrix;
+    /// The appearance thumbnails, row-aligned with the descriptors.
+    fn appearance(&self) -> &AppearanceMatrix;
     /// Scene-class distribution of `row` (sparse top entries).
     fn scene(&self, row: usize) -> &[SceneClass];
     /// Row of the keyframe that precedes `row` in its robot/session/map
@@ -33,6 +36,7 @@ pub trait KeyframeMemory {
 #[derive(Debug, Clone, Default)]
 pub struct VecMemory {
     descriptors: DescriptorMatrix,
+    appearance: AppearanceMatrix,
     features: Vec<Features>,
     predecessors: Vec<Option<usize>>,
 }
@@ -42,6 +46,7 @@ impl VecMemory {
     pub fn new(dim: usize) -> Self {
         VecMemory {
             descriptors: DescriptorMatrix::new(dim),
+            appearance: AppearanceMatrix::default(),
             features: Vec::new(),
             predecessors: Vec::new(),
         }
@@ -51,6 +56,7 @@ impl VecMemory {
     /// returns its row. Panics if the descriptor has the wrong dimension.
     pub fn push(&mut self, features: Features, predecessor: Option<usize>) -> usize {
         let row = self.descriptors.push(&features.descriptor);
+        self.appearance.push(&features.appearance);
         self.features.push(features);
         self.predecessors.push(predecessor);
         row
@@ -65,6 +71,10 @@ impl VecMemory {
 impl KeyframeMemory for VecMemory {
     fn descriptors(&self) -> &DescriptorMatrix {
         &self.descriptors
+    }
+
+    fn appearance(&self) -> &AppearanceMatrix {
+        &self.appearance
     }
 
     fn scene(&self, row: usize) -> &[SceneClass] {
@@ -106,6 +116,7 @@ mod tests {
     fn with_texts(texts: &[&str]) -> Features {
         Features {
             descriptor: vec![1.0, 0.0],
+            appearance: vec![],
             scene: vec![],
             objects: vec![ObjectObservation {
                 class_name: "sign".into(),

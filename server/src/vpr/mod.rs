@@ -4,8 +4,9 @@
 //! server), so the scoring can be unit-tested and benchmarked on its own. The
 //! layers follow the paper and `DESIGN.md`:
 //!
-//! - [`scal`]: global-descriptor cosine, scene modulation and temporal
-//!   context (the scene-primary hypothesis), over the whole eligible store;
+//! - [`scal`]: global-descriptor cosine (blended with the [`appearance`]
+//!   thumbnails' similarity), scene modulation and temporal context (the
+//!   scene-primary hypothesis), over the whole eligible store;
 //! - [`osrl`](mod@osrl): object layout, per-class Hungarian assignment, on the top K;
 //! - [`ogtl`](mod@ogtl): OCR text grounded on spatially compatible objects, on the top K;
 //! - [`contradiction`]: evidence against a candidate, `C` (disagreeing
@@ -21,6 +22,7 @@
 //! the store that ranking needs), [`text`] (string similarity and
 //! distinctiveness) and `assignment` (the Hungarian solver adapter).
 
+pub mod appearance;
 mod assignment;
 pub mod calibration;
 pub mod contradiction;

@@ -17,6 +17,10 @@ use serde::{Deserialize, Serialize};
 pub struct VprParams {
     /// `λ_c`, strength of the scene-class modulation of `s_e`.
     pub lambda_c: f32,
+    /// `w`, weight of the appearance thumbnails' similarity in `s_e`
+    /// (`vpr::appearance`; 0 turns the channel off). Chosen on the mean R@1
+    /// over every dev data set (README, "Perception").
+    pub appearance_weight: f32,
     /// `α`, temporal weights of the current observation and its two predecessors.
     pub alpha: [f32; 3],
     /// How the temporal average enters `S_s`: `support` (default) takes
@@ -83,6 +87,9 @@ const GENERIC_WORDS: &[&str] = &[
     "police", "taxi",
 ];
 
+/// Default `w` (see [`VprParams::appearance_weight`]).
+pub const APPEARANCE_WEIGHT: f32 = 0.15;
+
 /// Default `τ_c` (see [`VprParams::tau_c`]).
 pub const TAU_C: f32 = 0.36;
 
@@ -127,6 +134,7 @@ impl Default for VprParams {
     fn default() -> Self {
         VprParams {
             lambda_c: 0.10,
+            appearance_weight: APPEARANCE_WEIGHT,
             alpha: [0.5, 0.3, 0.2],
             temporal: TemporalMode::Support,
             top_k: 25,
@@ -187,6 +195,7 @@ impl VprParams {
         }
 
         non_negative("lambda_c", self.lambda_c)?;
+        finite_in("appearance_weight", self.appearance_weight, 0.0, 1.0)?;
         for (j, a) in self.alpha.iter().enumerate() {
             non_negative(&format!("alpha[{j}]"), *a)?;
         }

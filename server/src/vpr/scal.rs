@@ -8,13 +8,16 @@
 //! they are selected with a partial sort, so the pass stays `O(N·d)`.
 //!
 //! The descriptor products of every row with the query and its (up to two)
-//! predecessors are computed in one fused read of the matrix; a candidate's
-//! temporal terms are then looked up at its predecessors' rows. Scene
+//! predecessors are computed in one fused read of the matrix, together with
+//! the [`appearance`](crate::vpr::appearance) thumbnails' similarities when
+//! that channel is on, and become `s_e`; a candidate's temporal terms are
+//! then looked up at its predecessors' rows. Scene
 //! compatibility uses the query side prepared once ([`SceneProfile`]).
 
 use std::cmp::Ordering;
 
 use crate::keyframe::{Features, SceneClass};
+use crate::vpr::appearance::{self, AppearanceMatrix};
 use crate::vpr::calibration::NullModel;
 use crate::vpr::clip01;
 use crate::vpr::matrix::{dot, multi_dot, DescriptorMatrix};
@@ -144,13 +147,13 @@ pub struct ScalHit {
 /// steps for which both `Q_{t−j}` and `C_{i−j}` exist, contiguous from
 /// `j = 0`, at most `alpha.len()`. The query side comes prepared, one entry
 /// per available query observation (at least one): `scenes[j]` is the scene
-/// profile of `Q_{t−j}` and `dots[r][j]` is `ê_{Q_{t−j}}ᵀ ê_r`, from
-/// [`history_dots`].
+/// profile of `Q_{t−j}` and `s_e[r][j]` is `s_e(Q_{t−j}, r)`, from
+/// [`history_similarities`].
 fn scal_hit<M: KeyframeMemory + ?Sized>(
     params: &VprParams,
     memory: &M,
     scenes: &[SceneProfile],
-    dots: &[[f32; STEPS]],
+    s_e: &[[f32; STEPS]],
     row: usize,
 ) -> ScalHit {
     let descriptors = memory.descriptors();
@@ -166,7 +169,7 @@ fn scal_hit<M: KeyframeMemory + ?Sized>(
                 _ => break,
             }
         }
-        let s_e = clip01(dots[c_row][j]);
+        let s_e = s_e[c_row][j];
         let c_cat = scenes[j].compatibility(memory.scene(c_row));
         let s_tilde = modulated(s_e, c_cat, params.lambda_c);
         if j == 0 {
@@ -217,7 +220,12 @@ pub fn scal_scan<M: KeyframeMemory + ?Sized>(
     if query.history.is_empty() {
         return (Vec::new(), NullModel::default());
     }
-    let dots = history_dots(&query.history, memory.descriptors());
+    let s_e = history_similarities(
+        &query.history,
+        memory.descriptors(),
+        memory.appearance(),
+        params.appearance_weight,
+    );
     let scenes: Vec<SceneProfile> = query
         .history
         .iter()
@@ -226,7 +234,7 @@ pub fn scal_scan<M: KeyframeMemory + ?Sized>(
         .collect();
     let mut hits: Vec<ScalHit> = (0..memory.descriptors().len())
         .filter(|&row| eligible(row))
-        .map(|row| scal_hit(params, memory, &scenes, &dots, row))
+        .map(|row| scal_hit(params, memory, &scenes, &s_e, row))
         .collect();
     let null = NullModel::estimate(hits.iter().map(|h| h.score));
     top_k(&mut hits, params.top_k);
@@ -236,31 +244,57 @@ pub fn scal_scan<M: KeyframeMemory + ?Sized>(
 /// Temporal steps SCAL can use: the length of `α`.
 const STEPS: usize = 3;
 
-/// `dots[r][j] = ê_{Q_{t−j}}ᵀ ê_r` for every row `r` and every available
+/// `s_e[r][j] = s_e(Q_{t−j}, r)` for every row `r` and every available
 /// query observation `j < 3` (0 where the query has no such observation),
-/// in one pass over the matrix: every row is read once, whatever the
-/// temporal depth.
-fn history_dots(history: &[&Features], matrix: &DescriptorMatrix) -> Vec<[f32; STEPS]> {
-    let rows = (0..matrix.len()).map(|r| matrix.row(r));
+/// in one pass over the matrices: every row's descriptor (and thumbnail,
+/// when the appearance channel is on) is read once, whatever the temporal
+/// depth. `s_e` is the clipped cosine, blended with the thumbnails'
+/// similarity where both sides have one ([`appearance::fused`]).
+fn history_similarities(
+    history: &[&Features],
+    matrix: &DescriptorMatrix,
+    thumbnails: &AppearanceMatrix,
+    weight: f32,
+) -> Vec<[f32; STEPS]> {
+    let steps = history.len().min(STEPS);
     let q = |j: usize| history[j].descriptor.as_slice();
-    match history.len() {
-        0 => Vec::new(),
-        1 => rows
-            .map(|row| {
-                let [a] = multi_dot(&[q(0)], row);
-                [a, 0.0, 0.0]
+    let query_thumbnails: [Option<(&[i8], f32)>; STEPS] = std::array::from_fn(|j| {
+        let t = history.get(j).map(|f| f.appearance.as_slice())?;
+        (weight > 0.0 && t.len() == appearance::LEN)
+            .then(|| (t, appearance::norm(t)))
+            .filter(|&(_, norm)| norm > 0.0)
+    });
+    let with_thumbnails = weight > 0.0
+        && query_thumbnails.iter().any(Option::is_some)
+        && thumbnails.len() == matrix.len();
+    (0..matrix.len())
+        .map(|r| {
+            let row = matrix.row(r);
+            let dots = match steps {
+                0 => [0.0; STEPS],
+                1 => {
+                    let [a] = multi_dot(&[q(0)], row);
+                    [a, 0.0, 0.0]
+                }
+                2 => {
+                    let [a, b] = multi_dot(&[q(0), q(1)], row);
+                    [a, b, 0.0]
+                }
+                _ => multi_dot(&[q(0), q(1), q(2)], row),
+            };
+            let stored = if with_thumbnails {
+                thumbnails.row(r)
+            } else {
+                None
+            };
+            std::array::from_fn(|j| {
+                let rho = stored
+                    .zip(query_thumbnails[j])
+                    .map(|(c, q)| appearance::similarity(q, c));
+                appearance::fused(dots[j], rho, weight)
             })
-            .collect(),
-        2 => rows
-            .map(|row| {
-                let [a, b] = multi_dot(&[q(0), q(1)], row);
-                [a, b, 0.0]
-            })
-            .collect(),
-        _ => rows
-            .map(|row| multi_dot(&[q(0), q(1), q(2)], row))
-            .collect(),
-    }
+        })
+        .collect()
 }
 
 /// Keeps the best `k` hits in ranking order: `O(N + k log k)`.
@@ -316,6 +350,51 @@ mod tests {
             cosine: first_cos,
             scene_compatibility: first_cat,
             depth,
+        }
+    }
+
+    #[test]
+    fn the_appearance_channel_blends_into_s_e_where_both_sides_have_it() {
+        use crate::vpr::appearance::LEN;
+        let stripes = |period: usize| -> Vec<i8> {
+            (0..LEN)
+                .map(|i| if i % period < period / 2 { 20 } else { -20 })
+                .collect()
+        };
+        let with = |descriptor: &[f32], appearance: Vec<i8>| Features {
+            appearance,
+            ..features(descriptor, &[], vec![])
+        };
+        let mut m = VecMemory::new(2);
+        // Same descriptor cosine 0.6 for both rows; row 1 has the query's
+        // thumbnail, row 0 one that is uncorrelated with it, row 2 none.
+        m.push(with(&[0.6, 0.8], stripes(4)), None);
+        m.push(with(&[0.6, 0.8], stripes(2)), None);
+        m.push(with(&[0.6, 0.8], vec![]), None);
+        let query = with(&[1.0, 0.0], stripes(2));
+        let q = ScalQuery {
+            history: vec![&query],
+        };
+        let params = VprParams {
+            appearance_weight: 0.25,
+            lambda_c: 0.0,
+            ..VprParams::default()
+        };
+        let hits = scal_scores(&params, &q, &m, &|_| true);
+        let cosine_of = |row: usize| hits.iter().find(|h| h.row == row).unwrap().cosine;
+        // ρ = 1: 0.75 × 0.6 + 0.25 × 1 = 0.7; ρ = 0: 0.75 × 0.6 = 0.45;
+        // no thumbnail: the cosine alone, 0.6.
+        assert_eq!(hits[0].row, 1);
+        assert!(close(cosine_of(1), 0.7));
+        assert!(close(cosine_of(0), 0.45));
+        assert!(close(cosine_of(2), 0.6));
+        // Weight 0: the channel is off.
+        let off = VprParams {
+            appearance_weight: 0.0,
+            ..params
+        };
+        for hit in scal_scores(&off, &q, &m, &|_| true) {
+            assert!(close(hit.cosine, 0.6));
         }
     }
 
@@ -510,6 +589,7 @@ mod tests {
                         descriptor: d,
                         scene,
                         objects: vec![],
+                        appearance: vec![],
                     },
                     pred,
                 );
@@ -528,7 +608,7 @@ mod tests {
         ) {
             let feats: Vec<Features> = history
                 .into_iter()
-                .map(|(descriptor, scene)| Features { descriptor, scene, objects: vec![] })
+                .map(|(descriptor, scene)| Features { descriptor, scene, ..Features::default() })
                 .collect();
             let query = ScalQuery { history: feats.iter().collect() };
             let params = VprParams { top_k: k, ..VprParams::default() };
@@ -551,7 +631,7 @@ mod tests {
         ) {
             let feats: Vec<Features> = history
                 .into_iter()
-                .map(|(descriptor, scene)| Features { descriptor, scene, objects: vec![] })
+                .map(|(descriptor, scene)| Features { descriptor, scene, ..Features::default() })
                 .collect();
             let query = ScalQuery { history: feats.iter().collect() };
             for hit in scal_scores(&VprParams::default(), &query, &m, &|_| true) {

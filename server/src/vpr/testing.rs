@@ -45,6 +45,7 @@ pub fn features(
 ) -> Features {
     Features {
         descriptor: descriptor.to_vec(),
+        appearance: vec![],
         scene: scene
             .iter()
             .map(|&(class_id, probability)| SceneClass {

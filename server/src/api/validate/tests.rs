@@ -32,6 +32,7 @@ fn keyframe_msg() -> proto::Keyframe {
         }),
         content: Some(proto::keyframe::Content::Features(proto::Features {
             global_descriptor: vec![3.0, 4.0],
+            appearance: vec![],
             scene: vec![
                 proto::SceneClass {
                     class_id: 5,
