@@ -146,12 +146,16 @@ async fn rendered_text_is_read_back_and_grounds_a_match() {
     );
 
     // Raw frames as SLAM systems hold them work too; garbage does not.
-    let gray = image::load_from_memory(&board).unwrap().to_luma8();
+    // ITU-R 601 luma, as OpenCV makes ORB-SLAM3's grey frames.
+    let rgb = image::load_from_memory(&board).unwrap().to_rgb8();
     let raw = proto::Image {
         encoding: proto::image::Encoding::Gray8 as i32,
-        width: gray.width(),
-        height: gray.height(),
-        data: gray.into_raw(),
+        width: rgb.width(),
+        height: rgb.height(),
+        data: rgb
+            .pixels()
+            .map(|p| humem::perception::appearance::luma(p.0))
+            .collect(),
         stride: 0,
     };
     let reply = client
@@ -161,7 +165,12 @@ async fn rendered_text_is_read_back_and_grounds_a_match() {
         .await
         .unwrap()
         .into_inner();
-    assert_eq!(texts(&reply.features.unwrap())[0], "EXIT 12B");
+    let grey_features = reply.features.unwrap();
+    assert_eq!(texts(&grey_features)[0], "EXIT 12B");
+    // The appearance thumbnail (64x48 signed bytes) is made from grey
+    // anyway, so the colour image and its grey pixels give the same one.
+    assert_eq!(features.appearance.len(), 3072);
+    assert_eq!(grey_features.appearance, features.appearance);
     let status = client
         .insert(proto::InsertRequest {
             keyframe: Some(keyframe(

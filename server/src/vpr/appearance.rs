@@ -9,7 +9,11 @@
 //! It enters SCAL as `s_e = (1 − w) clip(cos) + w clip(ρ)`, with `ρ` the
 //! thumbnails' correlation and `w` = `vpr.appearance_weight`, only when both
 //! sides have a thumbnail (otherwise `s_e` is the cosine alone, as a missing
-//! scene model leaves `s̃_e` alone).
+//! scene model leaves `s̃_e` alone). `w` is 0 by default: the channel raises
+//! R@1 but, fused into one score, it widens the null that calibration
+//! measures against, and fewer queries pass the threshold (README,
+//! "Perception quality"). Thumbnails are computed and stored regardless, so
+//! a store can turn it on without re-inserting.
 //!
 //! Thumbnails are `i8` (the patch z-scores × [`SCALE`]), 3 KiB a keyframe
 //! against the descriptor's 5 KiB, kept in their own contiguous matrix with
