@@ -154,7 +154,7 @@ async fn rendered_text_is_read_back_and_grounds_a_match() {
         height: rgb.height(),
         data: rgb
             .pixels()
-            .map(|p| humem::perception::appearance::luma(p.0))
+            .map(|p| humem::perception::image::luma(p.0))
             .collect(),
         stride: 0,
     };

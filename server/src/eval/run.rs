@@ -29,6 +29,7 @@ use super::precision::{self, OperatingPoint, Precision, ScoredQuery};
 use super::truth::{Kind, PoseRule};
 use crate::config::Config;
 use crate::keyframe::{Features, KeyframeKey, Pose, SemanticKeyframe};
+use crate::perception::image::{decode as image_decode, luma, EncodedImage, Encoding};
 use crate::perception::{ImageInput, Perception};
 use crate::store::Index;
 use crate::vpr::{self, Layers, QueryObservation};
@@ -230,22 +231,12 @@ pub(super) fn image_bytes(
     let Some(d) = degradation else {
         return Ok(bytes);
     };
-    let image = decode(&bytes).with_context(|| format!("decoding {}", path.display()))?;
+    let image = image_decode(&EncodedImage::file(&bytes))
+        .with_context(|| format!("decoding {}", path.display()))?;
     let degraded = super::degrade::apply(&image, d);
     let mut png = Vec::new();
     degraded.write_to(&mut Cursor::new(&mut png), image::ImageFormat::Png)?;
     Ok(png)
-}
-
-/// An image file as the service decodes it (libjpeg-turbo for JPEGs).
-fn decode(bytes: &[u8]) -> Result<image::RgbImage, crate::perception::image::ImageError> {
-    crate::perception::image::decode(&crate::perception::image::EncodedImage {
-        encoding: crate::perception::image::Encoding::Auto,
-        data: bytes,
-        width: 0,
-        height: 0,
-        stride: 0,
-    })
 }
 
 /// The request image of a file: the file itself, or its grey pixels.
@@ -253,13 +244,10 @@ fn image_input(data: Vec<u8>, grey: bool) -> anyhow::Result<ImageInput> {
     if !grey {
         return Ok(ImageInput::file(data));
     }
-    let rgb = decode(&data)?;
+    let rgb = image_decode(&EncodedImage::file(&data))?;
     Ok(ImageInput {
-        encoding: crate::perception::image::Encoding::Gray8,
-        data: rgb
-            .pixels()
-            .map(|p| crate::perception::appearance::luma(p.0))
-            .collect(),
+        encoding: Encoding::Gray8,
+        data: rgb.pixels().map(|p| luma(p.0)).collect(),
         width: rgb.width(),
         height: rgb.height(),
         stride: 0,

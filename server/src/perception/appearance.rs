@@ -11,17 +11,13 @@
 use fast_image_resize as fir;
 use image::RgbImage;
 
+use super::image::luma;
 use crate::vpr::appearance::{HEIGHT, LEN, PATCH, SCALE, WIDTH};
 
 /// Added to a patch's deviation (grey levels, 0..255) before dividing by
 /// it, so that the sensor noise of a flat patch (sky, fog, a wall) is not
 /// stretched to full contrast.
 const NOISE_FLOOR: f32 = 4.0;
-
-/// ITU-R 601 luma in fixed point, rounded: Pillow's `convert("L")`.
-pub fn luma([r, g, b]: [u8; 3]) -> u8 {
-    ((u32::from(r) * 19595 + u32::from(g) * 38470 + u32::from(b) * 7471 + 0x8000) >> 16) as u8
-}
 
 /// The thumbnail of `image`: [`LEN`] values, row-major.
 pub fn thumbnail(image: &RgbImage) -> Vec<i8> {
@@ -67,14 +63,6 @@ fn normalise_patches(grey: &[u8]) -> Vec<i8> {
 mod tests {
     use super::*;
     use crate::vpr::appearance::{norm, similarity};
-
-    #[test]
-    fn luma_is_pillows() {
-        assert_eq!(luma([255, 255, 255]), 255);
-        assert_eq!(luma([0, 0, 0]), 0);
-        // 0.299 × 200 + 0.587 × 100 + 0.114 × 50 = 124.2
-        assert_eq!(luma([200, 100, 50]), 124);
-    }
 
     #[test]
     fn patches_are_normalised_and_flat_ones_stay_flat() {

@@ -81,6 +81,19 @@ pub enum ImageError {
     },
 }
 
+impl<'a> EncodedImage<'a> {
+    /// A JPEG or PNG file's bytes (the format is recognised).
+    pub fn file(data: &'a [u8]) -> EncodedImage<'a> {
+        EncodedImage {
+            encoding: Encoding::Auto,
+            data,
+            width: 0,
+            height: 0,
+            stride: 0,
+        }
+    }
+}
+
 fn check_size(width: u32, height: u32) -> Result<(), ImageError> {
     let ok = |s| (MIN_SIDE..=MAX_SIDE).contains(&s);
     if ok(width) && ok(height) {
@@ -189,6 +202,12 @@ fn decode_raw(image: &EncodedImage, channels: usize) -> Result<RgbImage, ImageEr
         }
     }
     Ok(RgbImage::from_raw(width, height, rgb).expect("buffer has width x height x 3 bytes"))
+}
+
+/// ITU-R 601 luma in fixed point, rounded: Pillow's `convert("L")` and
+/// OpenCV's `COLOR_RGB2GRAY`, so grey made here matches a grey camera's.
+pub fn luma([r, g, b]: [u8; 3]) -> u8 {
+    ((u32::from(r) * 19595 + u32::from(g) * 38470 + u32::from(b) * 7471 + 0x8000) >> 16) as u8
 }
 
 /// `image` resized to `width` x `height` (bilinear, aspect ratio not kept).
@@ -389,6 +408,14 @@ mod tests {
                 height: 8
             })
         );
+    }
+
+    #[test]
+    fn luma_is_pillows() {
+        assert_eq!(luma([255, 255, 255]), 255);
+        assert_eq!(luma([0, 0, 0]), 0);
+        // 0.299 × 200 + 0.587 × 100 + 0.114 × 50 = 124.2
+        assert_eq!(luma([200, 100, 50]), 124);
     }
 
     #[test]

@@ -31,9 +31,13 @@ pub const PATCH: usize = 8;
 pub const SCALE: f32 = 32.0;
 
 /// Row-major matrix of thumbnails, one row per keyframe, with each row's
-/// L2 norm; a keyframe without a thumbnail has a zero row and norm 0.
+/// L2 norm; a keyframe without a thumbnail has norm 0 and a zero row. A
+/// store of precomputed features without thumbnails holds no rows at all
+/// (`data` stays empty until the first thumbnail), not 3 KiB of zeros per
+/// keyframe.
 #[derive(Debug, Clone, PartialEq, Default)]
 pub struct AppearanceMatrix {
+    /// Empty, or `norms.len() × LEN` values.
     data: Vec<i8>,
     norms: Vec<f32>,
 }
@@ -51,6 +55,8 @@ impl AppearanceMatrix {
     /// (callers validate). Returns its index.
     pub fn push(&mut self, thumbnail: &[i8]) -> usize {
         if thumbnail.len() == LEN {
+            // The first thumbnail gives the earlier rows their zeros.
+            self.data.resize(self.norms.len() * LEN, 0);
             self.data.extend_from_slice(thumbnail);
             self.norms.push(norm(thumbnail));
         } else {
@@ -59,7 +65,9 @@ impl AppearanceMatrix {
                 "thumbnail of {} values",
                 thumbnail.len()
             );
-            self.data.resize(self.data.len() + LEN, 0);
+            if !self.data.is_empty() {
+                self.data.resize(self.data.len() + LEN, 0);
+            }
             self.norms.push(0.0);
         }
         self.norms.len() - 1
@@ -74,11 +82,13 @@ impl AppearanceMatrix {
     /// Removes row `i` by moving the last row into its place.
     pub fn swap_remove(&mut self, i: usize) {
         let last = self.norms.len() - 1;
-        if i != last {
-            let (head, tail) = self.data.split_at_mut(last * LEN);
-            head[i * LEN..(i + 1) * LEN].copy_from_slice(tail);
+        if !self.data.is_empty() {
+            if i != last {
+                let (head, tail) = self.data.split_at_mut(last * LEN);
+                head[i * LEN..(i + 1) * LEN].copy_from_slice(tail);
+            }
+            self.data.truncate(last * LEN);
         }
-        self.data.truncate(last * LEN);
         self.norms.swap_remove(i);
     }
 
@@ -183,5 +193,19 @@ mod tests {
         assert_eq!(m.row(0).unwrap().1, norm(&b));
         m.clear();
         assert!(m.is_empty());
+    }
+
+    #[test]
+    fn rows_before_the_first_thumbnail_cost_nothing_until_it_comes() {
+        let mut m = AppearanceMatrix::default();
+        m.push(&[]);
+        m.push(&[]);
+        assert!(m.data.is_empty());
+        m.swap_remove(0);
+        let a = thumb(|i| (i % 3) as i8 - 1);
+        assert_eq!(m.push(&a), 1);
+        assert_eq!(m.data.len(), 2 * LEN);
+        assert!(m.row(0).is_none());
+        assert_eq!(m.row(1).unwrap().0, a.as_slice());
     }
 }

@@ -256,17 +256,17 @@ fn history_similarities(
     thumbnails: &AppearanceMatrix,
     weight: f32,
 ) -> Vec<[f32; STEPS]> {
+    debug_assert_eq!(thumbnails.len(), matrix.len(), "row-aligned matrices");
     let steps = history.len().min(STEPS);
     let q = |j: usize| history[j].descriptor.as_slice();
+    // The query's thumbnails; none when the channel is off.
     let query_thumbnails: [Option<(&[i8], f32)>; STEPS] = std::array::from_fn(|j| {
         let t = history.get(j).map(|f| f.appearance.as_slice())?;
         (weight > 0.0 && t.len() == appearance::LEN)
             .then(|| (t, appearance::norm(t)))
             .filter(|&(_, norm)| norm > 0.0)
     });
-    let with_thumbnails = weight > 0.0
-        && query_thumbnails.iter().any(Option::is_some)
-        && thumbnails.len() == matrix.len();
+    let with_thumbnails = query_thumbnails.iter().any(Option::is_some);
     (0..matrix.len())
         .map(|r| {
             let row = matrix.row(r);
