@@ -39,6 +39,11 @@ async fn main() -> anyhow::Result<()> {
             init_logging(LogFormat::Plain, "warn,ort::logging=error");
             humem::eval::run::run(config, args).await
         }
+        Command::TextRecall(args) => {
+            let config = Config::load(cli.config.as_deref(), figment::Figment::new())?;
+            init_logging(LogFormat::Plain, "warn,ort::logging=error");
+            humem::eval::text_recall::run(config, args).await
+        }
         Command::Export { data_dir } => {
             init_logging(LogFormat::Plain, "warn");
             let count = humem::cli::export::export(&data_dir, &mut std::io::stdout().lock())?;

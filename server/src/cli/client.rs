@@ -67,7 +67,11 @@ fn status_error(call: &str, status: tonic::Status) -> anyhow::Error {
 pub async fn run_client(command: Command) -> anyhow::Result<()> {
     match command {
         Command::Load(args) => super::load::run(args).await?,
-        Command::Serve(_) | Command::Bench(_) | Command::Eval(_) | Command::Export { .. } => {
+        Command::Serve(_)
+        | Command::Bench(_)
+        | Command::Eval(_)
+        | Command::TextRecall(_)
+        | Command::Export { .. } => {
             bail!("not a client command")
         }
         Command::Insert {

@@ -103,6 +103,10 @@ pub enum Command {
     /// Recall@1/@5, MRR and latency on a data set, the paper's way (ablations
     /// and degradations as options).
     Eval(crate::eval::run::EvalArgs),
+    /// Text recall of the OCR on data sets with poses and sign positions:
+    /// the share of frames with a distinctive sign in view where OCR reads
+    /// it, and OCR time per image.
+    TextRecall(crate::eval::text_recall::TextRecallArgs),
     /// Drive a running server from simulated robots and print the achieved
     /// rate, latency percentiles, superseded queries and errors.
     Load(load::LoadArgs),

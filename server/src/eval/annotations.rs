@@ -28,10 +28,22 @@ const MIN_PIXELS: u32 = 30;
 /// A 16-bit instance-id mask.
 pub type InstanceMask = ImageBuffer<Luma<u16>, Vec<u16>>;
 
-/// Instance id → class, from `objects.json`.
+/// Instance id → what the object is, from `objects.json`.
 #[derive(Debug, Clone)]
 pub struct Catalog {
-    classes: HashMap<u16, String>,
+    pub objects: HashMap<u16, CatalogObject>,
+}
+
+/// One object of `objects.json`.
+#[derive(Debug, Clone, PartialEq, serde::Deserialize)]
+pub struct CatalogObject {
+    pub class: String,
+    /// The text it carries (signs, billboards), if any.
+    #[serde(default)]
+    pub text: Option<String>,
+    /// Approximate centre in the world frame, metres, if given.
+    #[serde(default)]
+    pub position: Option<[f64; 3]>,
 }
 
 impl Catalog {
@@ -43,36 +55,28 @@ impl Catalog {
         ]
         .into_iter()
         .find(|p| p.is_file())
-        .with_context(|| {
-            format!(
-                "--objects annotations: no objects.json in {} or its parent",
-                dataset.display()
-            )
-        })?;
+        .with_context(|| format!("no objects.json in {} or its parent", dataset.display()))?;
         let text = std::fs::read_to_string(&path)
             .with_context(|| format!("reading {}", path.display()))?;
         Self::parse(&text).with_context(|| format!("reading {}", path.display()))
     }
 
-    /// Parses `{"objects": {"<id>": {"class": "..."}, ...}}`.
+    /// Parses `{"objects": {"<id>": {"class": "...", "text": ...,
+    /// "position": [x, y, z]}, ...}}` (text and position optional).
     pub fn parse(text: &str) -> anyhow::Result<Catalog> {
         #[derive(serde::Deserialize)]
-        struct Entry {
-            class: String,
-        }
-        #[derive(serde::Deserialize)]
         struct File {
-            objects: BTreeMap<String, Entry>,
+            objects: BTreeMap<String, CatalogObject>,
         }
         let file: File = serde_json::from_str(text)?;
-        let mut classes = HashMap::new();
+        let mut objects = HashMap::new();
         for (id, entry) in file.objects {
             let id: u16 = id
                 .parse()
                 .with_context(|| format!("object id {id:?} is not a 16-bit number"))?;
-            classes.insert(id, entry.class);
+            objects.insert(id, entry);
         }
-        Ok(Catalog { classes })
+        Ok(Catalog { objects })
     }
 }
 
@@ -121,7 +125,7 @@ pub fn apply(features: &mut Features, mask: &InstanceMask, catalog: &Catalog) {
     let mut objects: Vec<ObjectObservation> = Vec::new();
     let mut slot: HashMap<u16, usize> = HashMap::new();
     for (id, (pixels, sx, sy)) in stats {
-        let Some(class) = catalog.classes.get(&id) else {
+        let Some(class) = catalog.objects.get(&id).map(|o| &o.class) else {
             continue;
         };
         if pixels < MIN_PIXELS || SURFACES.contains(&class.as_str()) {

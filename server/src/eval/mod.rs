@@ -11,7 +11,8 @@
 //! - [`degrade`]: the motion blur and exposure reduction of the conditions;
 //! - [`plots`]: the report's charts (accuracy–latency, recall per condition);
 //! - [`remote`]: the run measured through a service over gRPC (`--server`);
-//! - [`run`]: the run itself, its table, JSON and report.
+//! - [`run`]: the run itself, its table, JSON and report;
+//! - [`text_recall`]: how often OCR reads the signs in view (`humem text-recall`).
 
 pub mod annotations;
 pub mod baseline;
@@ -23,4 +24,5 @@ pub mod plots;
 pub mod precision;
 pub mod remote;
 pub mod run;
+pub mod text_recall;
 pub mod truth;
