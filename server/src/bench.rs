@@ -3,7 +3,8 @@
 //! against unbatched inference in the same run, on real images.
 //!
 //! Part 1 calls each model directly (no queue) with batches of 1, 4 and 8
-//! inputs. Part 2 runs the whole perception pipeline for concurrent
+//! inputs, and text detection at the camera's aspect ratio against the
+//! fixed 640x480 letterbox it replaced. Part 2 runs the whole perception pipeline for concurrent
 //! clients twice, once with batching off (`max_batch = 1`) and once with
 //! the configured batching, and reports the throughput ratio. Part 3 breaks
 //! the batched pipeline down by stage.
@@ -16,9 +17,11 @@ use anyhow::{bail, Context};
 
 use crate::config::Config;
 use crate::perception::batcher::BatchModel;
+use crate::perception::config::OcrConfig;
+use crate::perception::geometry::Rect;
 use crate::perception::image::{self as img, EncodedImage, Encoding};
-use crate::perception::model::ImageModel;
-use crate::perception::ocr::{self, OcrModels};
+use crate::perception::model::{ImageModel, Planes};
+use crate::perception::ocr::{self, canvas, OcrModels};
 use crate::perception::{runtime, ImageInput, Perception};
 
 /// Options of `humem bench perception`.
@@ -100,6 +103,74 @@ fn time_model<M: BatchModel>(
         let speedup = one.as_secs_f64() * 1e3 / per_item;
         println!("{name:<18} {batch:>5} {mean:>10.1} {p95:>10.1} {per_item:>12.2} {speedup:>9.2}x");
     }
+    Ok(())
+}
+
+/// The whole of `image` as a region.
+fn whole(image: &image::RgbImage) -> Rect {
+    Rect {
+        x0: 0.0,
+        y0: 0.0,
+        x1: image.width() as f32,
+        y1: image.height() as f32,
+    }
+}
+
+/// Text detection per image at the camera's aspect ratio (the configured
+/// long side) against the fixed 640x480 letterbox it replaced, one image at
+/// a time, alternating, in this run.
+fn compare_detection_shapes(
+    detector: &mut ImageModel,
+    decoded: &[image::RgbImage],
+    config: &OcrConfig,
+    repeats: usize,
+) -> anyhow::Result<()> {
+    const BEFORE: [usize; 2] = [640, 480];
+    let letterboxed = |image: &image::RgbImage| {
+        let long = (BEFORE[0] as f32 / image.width() as f32)
+            .min(BEFORE[1] as f32 / image.height() as f32)
+            * image.width().max(image.height()) as f32;
+        let (planes, _) = canvas::detector_input(image, whole(image), long.round() as u32);
+        let mut data = vec![0.0f32; 3 * BEFORE[0] * BEFORE[1]];
+        for c in 0..3 {
+            for y in 0..planes.height.min(BEFORE[1]) {
+                let w = planes.width.min(BEFORE[0]);
+                let src = &planes.data[(c * planes.height + y) * planes.width..][..w];
+                data[(c * BEFORE[1] + y) * BEFORE[0]..][..w].copy_from_slice(src);
+            }
+        }
+        Planes {
+            width: BEFORE[0],
+            height: BEFORE[1],
+            data,
+        }
+    };
+    let before: Vec<Planes> = decoded.iter().map(letterboxed).collect();
+    let after: Vec<Planes> = decoded
+        .iter()
+        .map(|i| canvas::detector_input(i, whole(i), config.detector_long_side).0)
+        .collect();
+    let (mut t_before, mut t_after) = (Vec::new(), Vec::new());
+    for r in 0..repeats.max(1) * 2 {
+        for (set, samples) in [(&before, &mut t_before), (&after, &mut t_after)] {
+            let input = set[r % set.len()].clone();
+            let started = Instant::now();
+            detector.run(vec![input])?;
+            if r >= 2 {
+                samples.push(started.elapsed());
+            }
+        }
+    }
+    let (b, _) = summary(&t_before);
+    let (a, _) = summary(&t_after);
+    let shape = |p: &Planes| format!("{}x{}", p.width, p.height);
+    println!(
+        "ocr detection per image: {} letterbox (before) {b:.1} ms, {} at long side {} {a:.1} ms: {:.2}x",
+        shape(&before[0]),
+        shape(&after[0]),
+        config.detector_long_side,
+        a / b
+    );
     Ok(())
 }
 
@@ -189,15 +260,19 @@ pub async fn perception(config: Config, args: PerceptionBench) -> anyhow::Result
         runtime::session(&env, &p.resolve(&d.model), options)?,
         &d.input,
         &outputs,
-        [d.width as usize, d.height as usize],
+        Some([d.width as usize, d.height as usize]),
     )?;
-    let global_inputs: Vec<Vec<f32>> = decoded
+    let global_inputs: Vec<Planes> = decoded
         .iter()
         .map(|i| {
             let resized = img::resize(i, d.width, d.height);
             let mut data = Vec::new();
             img::append_chw(&resized, img::Channels::Rgb, d.mean, d.std, &mut data);
-            data
+            Planes {
+                width: d.width as usize,
+                height: d.height as usize,
+                data,
+            }
         })
         .collect();
     time_model(
@@ -213,21 +288,9 @@ pub async fn perception(config: Config, args: PerceptionBench) -> anyhow::Result
             runtime::session(&env, &p.resolve(&o.recognizer), options)?,
         )];
         let mut models = OcrModels::new(sessions, o, Arc::new(dictionary))?;
-        let (dw, dh) = (o.detector_width, o.detector_height);
-        let det_inputs: Vec<Vec<f32>> = decoded
+        let det_inputs: Vec<Planes> = decoded
             .iter()
-            .map(|i| {
-                let resized = img::resize(i, dw, dh);
-                let mut data = Vec::new();
-                img::append_chw(
-                    &resized,
-                    img::Channels::Bgr,
-                    [0.485, 0.456, 0.406],
-                    [0.229, 0.224, 0.225],
-                    &mut data,
-                );
-                data
-            })
+            .map(|i| canvas::detector_input(i, whole(i), o.detector_long_side).0)
             .collect();
         time_model(
             "ocr detection",
@@ -261,6 +324,7 @@ pub async fn perception(config: Config, args: PerceptionBench) -> anyhow::Result
             },
             args.repeats,
         )?;
+        compare_detection_shapes(&mut models.detectors[0], &decoded, o, args.repeats)?;
     }
 
     // Part 2: the pipeline under concurrent clients, unbatched then batched.

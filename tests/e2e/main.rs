@@ -16,3 +16,4 @@ mod latest_wins;
 mod maintenance;
 mod metrics;
 mod retrieval;
+mod text_recall;

@@ -52,9 +52,30 @@ pub struct TextRecallArgs {
     /// repeatable. The query images are read (for `loop`, the sequence).
     #[arg(long, required = true)]
     pub dataset: Vec<PathBuf>,
+    /// Only the frames whose index is in this range (`START..END`, END
+    /// excluded), e.g. to check a few frames quickly.
+    #[arg(long, value_parser = parse_range)]
+    pub frames: Option<std::ops::Range<usize>>,
     /// Write every number as JSON here.
     #[arg(long)]
     pub json: Option<PathBuf>,
+}
+
+/// Parses `START..END`.
+fn parse_range(text: &str) -> Result<std::ops::Range<usize>, String> {
+    let (start, end) = text
+        .split_once("..")
+        .ok_or_else(|| format!("{text:?}: expected START..END"))?;
+    let number = |s: &str| {
+        s.trim()
+            .parse::<usize>()
+            .map_err(|e| format!("{text:?}: {s:?} is not a frame index: {e}"))
+    };
+    let (start, end) = (number(start)?, number(end)?);
+    if start >= end {
+        return Err(format!("{text:?}: the range is empty"));
+    }
+    Ok(start..end)
 }
 
 /// A pinhole camera, from `<sequence>_calib.json`.
@@ -207,6 +228,7 @@ fn visible_pixels(mask: &annotations::InstanceMask) -> BTreeMap<u16, u32> {
 async fn folder(
     perception: &Perception,
     dataset: &Path,
+    frames: Option<std::ops::Range<usize>>,
     params: &VprParams,
 ) -> anyhow::Result<FolderResult> {
     let name = query_folder(dataset)?;
@@ -221,10 +243,25 @@ async fn folder(
         );
     }
     let camera = load_camera(&dataset.join(format!("{name}_calib.json")))?;
+    let frames = frames.unwrap_or(0..images.len());
+    let selected: Vec<(&PathBuf, &Pose)> = images
+        .iter()
+        .zip(poses.iter().map(|(_, pose)| pose))
+        .enumerate()
+        .filter(|(i, _)| frames.contains(i))
+        .map(|(_, frame)| frame)
+        .collect();
+    if selected.is_empty() {
+        bail!(
+            "{}: no frames in {frames:?} (it has {})",
+            dataset.display(),
+            images.len()
+        );
+    }
     let signs = signs(&Catalog::find(dataset)?, params);
     let mut result = FolderResult {
         dataset: dataset.display().to_string(),
-        frames: images.len(),
+        frames: selected.len(),
         frames_with_sign: 0,
         frames_read: 0,
         sightings: 0,
@@ -232,8 +269,8 @@ async fn folder(
         ocr_ms: 0.0,
         extract_ms: 0.0,
     };
-    let bar = super::run::progress(images.len(), &result.dataset);
-    for (path, (_, pose)) in images.iter().zip(&poses) {
+    let bar = super::run::progress(selected.len(), &result.dataset);
+    for (path, pose) in selected {
         bar.inc(1);
         let mut seen: Vec<&Sign> = signs
             .iter()
@@ -296,7 +333,7 @@ pub async fn run(config: Config, args: TextRecallArgs) -> anyhow::Result<()> {
             .context("loading the models")??;
     let mut results = Vec::new();
     for dataset in &args.dataset {
-        results.push(folder(&perception, dataset, &config.vpr).await?);
+        results.push(folder(&perception, dataset, args.frames.clone(), &config.vpr).await?);
     }
     let total = FolderResult {
         dataset: "all".into(),
@@ -357,6 +394,14 @@ fn weighted(results: &[FolderResult], value: impl Fn(&FolderResult) -> f64) -> f
 mod tests {
     use super::*;
     use nalgebra::UnitQuaternion;
+
+    #[test]
+    fn frame_ranges() {
+        assert_eq!(parse_range("60..70"), Ok(60..70));
+        assert!(parse_range("70..60").is_err());
+        assert!(parse_range("60").is_err());
+        assert!(parse_range("a..b").is_err());
+    }
 
     #[test]
     fn substring_distance_by_hand() {

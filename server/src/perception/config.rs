@@ -284,10 +284,12 @@ pub struct OcrConfig {
     pub recognizer: PathBuf,
     /// Character list index-aligned with the recogniser's classes.
     pub dictionary: PathBuf,
-    /// Text-detection input size (multiples of 32). Images are resized to
-    /// it, so that all detections of a batch share one shape.
-    pub detector_width: u32,
-    pub detector_height: u32,
+    /// Text detection input: the region (the whole image, or an object's
+    /// box) keeps its aspect ratio and is scaled so that its long side is
+    /// this many pixels; each side is then padded up to a multiple of 32.
+    /// The camera's own width (512 for 512x288) reads what the pixels hold
+    /// at the least cost; a larger value finds smaller text, slower.
+    pub detector_long_side: u32,
     /// Recogniser input height and widest line, in pixels.
     pub line_height: u32,
     pub max_line_width: u32,
@@ -299,14 +301,16 @@ pub struct OcrConfig {
     pub text_object_class: String,
 }
 
+/// Default [`OcrConfig::detector_long_side`].
+pub const DETECTOR_LONG_SIDE: u32 = 512;
+
 impl Default for OcrConfig {
     fn default() -> Self {
         OcrConfig {
             detector: PathBuf::from("ocr/ppocrv5_det.onnx"),
             recognizer: PathBuf::from("ocr/ppocrv5_rec.onnx"),
             dictionary: PathBuf::from("ocr/ppocr_keys_v5.txt"),
-            detector_width: 640,
-            detector_height: 480,
+            detector_long_side: DETECTOR_LONG_SIDE,
             line_height: 48,
             max_line_width: 480,
             min_confidence: 0.5,
@@ -318,14 +322,8 @@ impl Default for OcrConfig {
 
 impl OcrConfig {
     fn validate(&self) -> Result<(), String> {
-        if !self.detector_width.is_multiple_of(32)
-            || !self.detector_height.is_multiple_of(32)
-            || self.detector_width == 0
-            || self.detector_height == 0
-        {
-            return Err(
-                "detector_width and detector_height must be positive multiples of 32".into(),
-            );
+        if !(32..=4096).contains(&self.detector_long_side) {
+            return Err("detector_long_side must be between 32 and 4096".into());
         }
         if self.line_height < 8 || self.max_line_width < self.line_height {
             return Err(

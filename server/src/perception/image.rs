@@ -210,6 +210,39 @@ pub fn luma([r, g, b]: [u8; 3]) -> u8 {
     ((u32::from(r) * 19595 + u32::from(g) * 38470 + u32::from(b) * 7471 + 0x8000) >> 16) as u8
 }
 
+/// Stretches `image`'s contrast in place: the luma levels at the `low` and
+/// `high` fractions of its histogram go to 0 and 255, every channel
+/// scaled alike (hue kept). Leaves nearly flat images (span under 8
+/// levels) alone, where stretching would only amplify noise.
+pub fn stretch_contrast(image: &mut RgbImage, low: f32, high: f32) {
+    let mut histogram = [0u32; 256];
+    for p in image.pixels() {
+        histogram[usize::from(luma(p.0))] += 1;
+    }
+    let total = image.width() as f32 * image.height() as f32;
+    let level_at = |fraction: f32| {
+        let target = (fraction * total).max(0.0);
+        let mut seen = 0.0;
+        for (level, &count) in histogram.iter().enumerate() {
+            seen += count as f32;
+            if seen > target {
+                return level as f32;
+            }
+        }
+        255.0
+    };
+    let (lo, hi) = (level_at(low), level_at(high));
+    if hi - lo < 8.0 {
+        return;
+    }
+    let gain = 255.0 / (hi - lo);
+    for p in image.pixels_mut() {
+        for c in &mut p.0 {
+            *c = ((f32::from(*c) - lo) * gain).round().clamp(0.0, 255.0) as u8;
+        }
+    }
+}
+
 /// `image` resized to `width` x `height` (bilinear, aspect ratio not kept).
 pub fn resize(image: &RgbImage, width: u32, height: u32) -> RgbImage {
     if image.width() == width && image.height() == height {
@@ -266,6 +299,26 @@ pub fn append_chw(
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn contrast_is_stretched_to_the_full_range() {
+        // A dim two-level image (40 and 80) becomes black and white; hue is
+        // kept because every channel is scaled alike.
+        let mut image = RgbImage::from_fn(10, 10, |x, _| {
+            if x < 5 {
+                image::Rgb([40, 40, 40])
+            } else {
+                image::Rgb([80, 80, 80])
+            }
+        });
+        stretch_contrast(&mut image, 0.02, 0.98);
+        assert_eq!(image.get_pixel(0, 0).0, [0, 0, 0]);
+        assert_eq!(image.get_pixel(9, 9).0, [255, 255, 255]);
+        // A flat image is left alone.
+        let mut flat = RgbImage::from_pixel(4, 4, image::Rgb([90, 92, 94]));
+        stretch_contrast(&mut flat, 0.02, 0.98);
+        assert_eq!(flat.get_pixel(0, 0).0, [90, 92, 94]);
+    }
 
     fn raw(
         encoding: Encoding,

@@ -29,7 +29,7 @@ use crate::keyframe::{Features, ObjectObservation, SceneClass, TextObservation};
 use batcher::{BatchError, Batcher};
 use config::{ImageModelConfig, PerceptionConfig};
 use image::{EncodedImage, ImageError};
-use model::ImageModel;
+use model::{ImageModel, Planes};
 use objects::Detector;
 use ocr::{Ocr, OcrModels, OcrTimes};
 use runtime::RuntimeError;
@@ -134,7 +134,7 @@ impl Perception {
                         session,
                         &m.input,
                         &outputs,
-                        [m.width as usize, m.height as usize],
+                        Some([m.width as usize, m.height as usize]),
                     )
                 })
                 .collect::<Result<Vec<_>, RuntimeError>>()?;
@@ -354,7 +354,7 @@ impl Perception {
 }
 
 /// The normalised input of an image model.
-fn model_input(image: &RgbImage, config: &ImageModelConfig) -> Vec<f32> {
+fn model_input(image: &RgbImage, config: &ImageModelConfig) -> Planes {
     let resized = image::resize(image, config.width, config.height);
     let mut data = Vec::with_capacity(3 * (config.width * config.height) as usize);
     image::append_chw(
@@ -364,7 +364,11 @@ fn model_input(image: &RgbImage, config: &ImageModelConfig) -> Vec<f32> {
         config.std,
         &mut data,
     );
-    data
+    Planes {
+        width: config.width as usize,
+        height: config.height as usize,
+        data,
+    }
 }
 
 /// The L2-normalised descriptor of a model output.

@@ -1,11 +1,15 @@
-//! One ONNX model over fixed-size images, as a [`BatchModel`].
+//! One ONNX model over images, as a [`BatchModel`].
 //!
 //! The descriptor, scene, detector and text-detection models all take a
-//! batch of equally sized, normalised CHW images and return one or more
-//! tensors with the batch as their first axis. This wraps a session so
-//! that the batcher can stack its inputs into one `[N, 3, H, W]` tensor and
-//! split every output back per image. Preprocessing happens in the caller,
-//! on many threads, so the model's worker only runs the network.
+//! batch of normalised CHW images and return one or more tensors with the
+//! batch as their first axis. This wraps a session so that the batcher can
+//! stack its inputs into `[N, 3, H, W]` tensors and split every output back
+//! per image. Most models take one fixed size; a fully convolutional one
+//! (text detection) takes any size, so a batch is run as one tensor per
+//! shape among its images. Preprocessing happens in the caller, on many
+//! threads, so the model's worker only runs the network.
+
+use std::collections::BTreeMap;
 
 use ort::session::Session;
 use ort::value::TensorRef;
@@ -18,24 +22,34 @@ use super::runtime::RuntimeError;
 #[derive(Debug, Clone, PartialEq)]
 pub struct Outputs(pub Vec<(Vec<usize>, Vec<f32>)>);
 
+/// One normalised image: `3 × height × width` planar values.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Planes {
+    pub width: usize,
+    pub height: usize,
+    pub data: Vec<f32>,
+}
+
 /// A session over `[N, 3, height, width]` float inputs.
 pub struct ImageModel {
     pub name: String,
     session: Session,
     input: String,
     outputs: Vec<String>,
-    width: usize,
-    height: usize,
+    /// `[width, height]` every input must have; `None`: any.
+    size: Option<[usize; 2]>,
 }
 
 impl ImageModel {
     /// Wraps `session`; checks that it has the named input and outputs.
+    /// `size` (`[width, height]`) is the one input size the model takes, or
+    /// `None` for a fully convolutional model that takes any.
     pub fn new(
         name: &str,
         session: Session,
         input: &str,
         outputs: &[String],
-        [width, height]: [usize; 2],
+        size: Option<[usize; 2]>,
     ) -> Result<ImageModel, RuntimeError> {
         let error = |message: String| RuntimeError::Run {
             model: name.to_string(),
@@ -66,14 +80,8 @@ impl ImageModel {
             session,
             input: input.to_string(),
             outputs: outputs.to_vec(),
-            width,
-            height,
+            size,
         })
-    }
-
-    /// Values in one input image: `3 × height × width`.
-    pub fn input_len(&self) -> usize {
-        3 * self.width * self.height
     }
 
     fn error(&self, message: impl Into<String>) -> RuntimeError {
@@ -82,28 +90,20 @@ impl ImageModel {
             message: message.into(),
         }
     }
-}
 
-impl BatchModel for ImageModel {
-    type Input = Vec<f32>;
-    type Output = Outputs;
-
-    fn run(&mut self, inputs: Vec<Vec<f32>>) -> Result<Vec<Outputs>, RuntimeError> {
-        let n = inputs.len();
-        let per_image = self.input_len();
-        if let Some(bad) = inputs.iter().find(|i| i.len() != per_image) {
-            return Err(self.error(format!(
-                "input of {} values, expected {per_image}",
-                bad.len()
-            )));
-        }
+    /// Runs one tensor of equally sized images.
+    fn run_shape(
+        &mut self,
+        [width, height]: [usize; 2],
+        images: &[&Planes],
+    ) -> Result<Vec<Outputs>, RuntimeError> {
+        let n = images.len();
         let data: Vec<f32> = if n == 1 {
-            inputs.into_iter().next().unwrap_or_default()
+            images[0].data.clone()
         } else {
-            inputs.concat()
+            images.iter().flat_map(|i| i.data.iter().copied()).collect()
         };
-        let shape = [n, 3, self.height, self.width];
-        let tensor = TensorRef::from_array_view((shape, data.as_slice()))
+        let tensor = TensorRef::from_array_view(([n, 3, height, width], data.as_slice()))
             .map_err(|e| self.error(e.to_string()))?;
         let input_name = self.input.clone();
         let results = self
@@ -138,5 +138,41 @@ impl BatchModel for ImageModel {
             }
         }
         Ok(per_item)
+    }
+}
+
+impl BatchModel for ImageModel {
+    type Input = Planes;
+    type Output = Outputs;
+
+    fn run(&mut self, inputs: Vec<Planes>) -> Result<Vec<Outputs>, RuntimeError> {
+        // Indices of the inputs of each shape, in order.
+        let mut shapes: BTreeMap<[usize; 2], Vec<usize>> = BTreeMap::new();
+        for (i, image) in inputs.iter().enumerate() {
+            let size = [image.width, image.height];
+            if image.data.len() != 3 * image.width * image.height {
+                return Err(self.error(format!(
+                    "input of {} values for {}x{}",
+                    image.data.len(),
+                    image.width,
+                    image.height
+                )));
+            }
+            if let Some(expected) = self.size.filter(|&e| e != size) {
+                return Err(self.error(format!(
+                    "input of {}x{}, expected {}x{}",
+                    size[0], size[1], expected[0], expected[1]
+                )));
+            }
+            shapes.entry(size).or_default().push(i);
+        }
+        let mut outputs: Vec<Option<Outputs>> = vec![None; inputs.len()];
+        for (size, indices) in shapes {
+            let images: Vec<&Planes> = indices.iter().map(|&i| &inputs[i]).collect();
+            for (i, out) in indices.into_iter().zip(self.run_shape(size, &images)?) {
+                outputs[i] = Some(out);
+            }
+        }
+        Ok(outputs.into_iter().flatten().collect())
     }
 }

@@ -18,7 +18,7 @@ use super::batcher::{BatchConfig, BatchError, Batcher};
 use super::config::{DetectorConfig, PerceptionConfig, YoloLayout};
 use super::geometry::Rect;
 use super::image::resize;
-use super::model::ImageModel;
+use super::model::{ImageModel, Planes};
 use super::runtime::{self, RuntimeError};
 use super::yolo::{self, Layout};
 
@@ -66,7 +66,7 @@ impl Letterbox {
 }
 
 /// The letterboxed, `[0, 1]`-scaled CHW input of `image`.
-pub fn letterbox_input(image: &RgbImage, size: u32) -> (Vec<f32>, Letterbox) {
+pub fn letterbox_input(image: &RgbImage, size: u32) -> (Planes, Letterbox) {
     let lb = Letterbox::new(image.width(), image.height(), size);
     let w = ((image.width() as f32 * lb.scale).round() as u32).clamp(1, size);
     let h = ((image.height() as f32 * lb.scale).round() as u32).clamp(1, size);
@@ -85,7 +85,15 @@ pub fn letterbox_input(image: &RgbImage, size: u32) -> (Vec<f32>, Letterbox) {
             data[c * n + i] = f32::from(p.0[c]) / 255.0;
         }
     }
-    (data, lb)
+    let side = size as usize;
+    (
+        Planes {
+            width: side,
+            height: side,
+            data,
+        },
+        lb,
+    )
 }
 
 /// The detector: its batcher and configuration.
@@ -110,7 +118,13 @@ impl Detector {
             .map(|_| {
                 let session = runtime::session(env, &path, perception.session_options())?;
                 let size = config.size as usize;
-                ImageModel::new("detector", session, &config.input, &outputs, [size, size])
+                ImageModel::new(
+                    "detector",
+                    session,
+                    &config.input,
+                    &outputs,
+                    Some([size, size]),
+                )
             })
             .collect::<Result<Vec<_>, RuntimeError>>()?;
         tracing::info!(role = "detector", model = %path.display(), "model loaded");
@@ -234,7 +248,7 @@ mod tests {
         assert_eq!(lb.pad, [0.0, 16.0]);
         assert_eq!(lb.to_image([32.0, 32.0]), [100.0, 50.0]);
         let image = RgbImage::from_pixel(200, 100, image::Rgb([255, 0, 0]));
-        let (data, _) = letterbox_input(&image, 64);
+        let (Planes { data, .. }, _) = letterbox_input(&image, 64);
         // Red plane: padding grey at the top row, image red in the middle.
         assert!((data[0] - 114.0 / 255.0).abs() < 1e-6);
         assert_eq!(data[32 * 64 + 32], 1.0);

@@ -1,14 +1,16 @@
 //! OCR with PP-OCRv5: text detection (DBNet) then line recognition (CRNN
 //! with CTC), each batched across concurrent requests.
 //!
-//! Detection runs on a region (the whole image, or an object's box) scaled
-//! into one fixed input size (keeping its aspect ratio, padded), so that
-//! regions of different images stack into one batch. Each detected line is cropped from the full-resolution image,
-//! scaled to the recogniser's line height and read; lines of a batch are
-//! padded to the widest, as PaddleOCR does. PaddleOCR's models were trained
+//! Detection runs on a region (the whole image, or an object's box) at the
+//! camera's aspect ratio, its long side scaled to the configured length
+//! ([`canvas`]); regions of one shape batch together. Each detected line is
+//! cropped from the full-resolution image, its contrast stretched, scaled
+//! to the recogniser's line height and read; lines of a batch are padded to
+//! the widest, as PaddleOCR does. PaddleOCR's models were trained
 //! on OpenCV's BGR images with ImageNet normalisation for detection and
 //! `(v − 0.5) / 0.5` for recognition; that is what they are fed here.
 
+pub mod canvas;
 pub mod ctc;
 pub mod db;
 
@@ -23,13 +25,11 @@ use ort::value::TensorRef;
 use super::batcher::{BatchError, BatchModel, Batcher};
 use super::config::OcrConfig;
 use super::geometry::Rect;
-use super::image::{append_chw, resize, Channels};
+use super::image::{append_chw, resize, stretch_contrast, Channels};
 use super::model::ImageModel;
 use super::runtime::RuntimeError;
 use ctc::{Decoded, Dictionary};
 
-const DET_MEAN: [f32; 3] = [0.485, 0.456, 0.406];
-const DET_STD: [f32; 3] = [0.229, 0.224, 0.225];
 const REC_MEAN: [f32; 3] = [0.5; 3];
 const REC_STD: [f32; 3] = [0.5; 3];
 
@@ -171,10 +171,7 @@ impl OcrModels {
                 det,
                 &det_input,
                 &[det_output],
-                [
-                    config.detector_width as usize,
-                    config.detector_height as usize,
-                ],
+                None,
             )?);
             recognizers.push(LineRecognizer {
                 input: rec_input,
@@ -253,32 +250,12 @@ impl Ocr {
         if region.width() < 4.0 || region.height() < 4.0 {
             return Ok(Vec::new());
         }
-        let (dw, dh) = (self.config.detector_width, self.config.detector_height);
-        // Letterbox: scale the region to fit the detector input, keeping its
-        // aspect ratio (text distorted by stretching is read worse), and
-        // leave the rest of the input at zero (the normalised mean).
-        let scale = (dw as f32 / region.width()).min(dh as f32 / region.height());
-        let det_input = {
+        let long_side = self.config.detector_long_side;
+        let (det_input, placement) = {
             let image = image.clone();
-            tokio::task::spawn_blocking(move || {
-                let crop = crop(&image, region);
-                let fw = ((region.width() * scale).round() as u32).clamp(1, dw);
-                let fh = ((region.height() * scale).round() as u32).clamp(1, dh);
-                let resized = resize(&crop, fw, fh);
-                let mut planes = Vec::with_capacity(3 * (fw * fh) as usize);
-                append_chw(&resized, Channels::Bgr, DET_MEAN, DET_STD, &mut planes);
-                let (dw, dh, fw, fh) = (dw as usize, dh as usize, fw as usize, fh as usize);
-                let mut data = vec![0.0f32; 3 * dw * dh];
-                for c in 0..3 {
-                    for y in 0..fh {
-                        let src = &planes[(c * fh + y) * fw..][..fw];
-                        data[(c * dh + y) * dw..][..fw].copy_from_slice(src);
-                    }
-                }
-                data
-            })
-            .await
-            .map_err(|e| runtime(format!("text detection preprocessing failed: {e}")))?
+            tokio::task::spawn_blocking(move || canvas::detector_input(&image, region, long_side))
+                .await
+                .map_err(|e| runtime(format!("text detection preprocessing failed: {e}")))?
         };
         let detected = self.detector.infer(det_input).await?;
         times.detection += detected.inference + detected.queued;
@@ -290,7 +267,11 @@ impl Ocr {
             _ => return Err(runtime(format!("text detection output shape {shape:?}"))),
         };
         // The map has the input's size; map pixels back to image pixels.
-        let (sx, sy) = (dw as f32 / mw as f32 / scale, dh as f32 / mh as f32 / scale);
+        let [iw, ih] = placement.input.map(|s| s as f32);
+        let (sx, sy) = (
+            iw / mw as f32 / placement.scale,
+            ih / mh as f32 / placement.scale,
+        );
         let mut boxes = db::text_boxes(&prob, mw, mh, &self.params);
         boxes.truncate(self.config.max_lines);
         let to_image = |[x, y]: [f32; 2]| [x * sx + region.x0, y * sy + region.y0];
@@ -357,7 +338,7 @@ fn runtime(message: String) -> BatchError {
 }
 
 /// The pixels of `rect` (clamped) as an image.
-fn crop(image: &RgbImage, rect: Rect) -> RgbImage {
+pub(crate) fn crop(image: &RgbImage, rect: Rect) -> RgbImage {
     let x0 = rect.x0.max(0.0).floor() as u32;
     let y0 = rect.y0.max(0.0).floor() as u32;
     let x1 = (rect.x1.ceil() as u32).clamp(x0 + 1, image.width());
@@ -410,6 +391,9 @@ pub(crate) fn line_input(
             );
         }
     }
+    // Dim or foggy signs read better at full contrast; 2 % of the pixels
+    // may clip at either end.
+    stretch_contrast(&mut line, 0.02, 0.98);
     if line.height() as f32 >= 1.5 * line.width() as f32 {
         line = image::imageops::rotate270(&line);
     }
