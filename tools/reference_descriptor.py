@@ -21,21 +21,31 @@ import onnxruntime as ort
 from PIL import Image
 
 
+def describer(model, width, height):
+    """A function from an image path to its L2-normalised descriptor."""
+    session = ort.InferenceSession(model, providers=['CPUExecutionProvider'])
+    meta = session.get_modelmeta().custom_metadata_map
+    mean = np.array([float(v) for v in meta['humem.mean'].split(',')], np.float32)
+    std = np.array([float(v) for v in meta['humem.std'].split(',')], np.float32)
+
+    def describe(path):
+        with Image.open(path) as img:
+            rgb = img.convert('RGB').resize((width, height), Image.BILINEAR)
+        x = (np.asarray(rgb, np.float32) / 255 - mean) / std
+        (d,) = session.run(['descriptor'], {'image': x.transpose(2, 0, 1)[None]})
+        return d[0] / np.linalg.norm(d[0])
+
+    return describe
+
+
 def main():
     if len(sys.argv) < 4 or 'x' not in sys.argv[2]:
         sys.exit(__doc__)
     model, size, paths = sys.argv[1], sys.argv[2], sys.argv[3:]
     width, height = (int(v) for v in size.split('x'))
-    session = ort.InferenceSession(model, providers=['CPUExecutionProvider'])
-    meta = session.get_modelmeta().custom_metadata_map
-    mean = np.array([float(v) for v in meta['humem.mean'].split(',')], np.float32)
-    std = np.array([float(v) for v in meta['humem.std'].split(',')], np.float32)
+    describe = describer(model, width, height)
     for path in paths:
-        with Image.open(path) as img:
-            rgb = img.convert('RGB').resize((width, height), Image.BILINEAR)
-        x = (np.asarray(rgb, np.float32) / 255 - mean) / std
-        (d,) = session.run(['descriptor'], {'image': x.transpose(2, 0, 1)[None]})
-        d = d[0] / np.linalg.norm(d[0])
+        d = describe(path)
         print(json.dumps({'path': path, 'descriptor': [round(float(v), 7) for v in d]}))
 
 
