@@ -592,6 +592,31 @@ void VprKeyFrameDatabase::DetectNBestCandidates(KeyFrame *pKF, std::vector<KeyFr
     if(!pKF)
         return;
     Map* pMap = pKF->GetMap();
+    const humem::Ticket ticket = LoopTicketFor(pKF, pMap);
+    if(ticket == 0)
+    {
+        if(mSettings.dbow2Fallback)
+            KeyFrameDatabase::DetectNBestCandidates(pKF, vpLoopCand, vpMergeCand, nNumCandidates);
+        return;
+    }
+
+    // Wait for the answer without holding mMutexHm.
+    const std::chrono::steady_clock::time_point t0 = std::chrono::steady_clock::now();
+    humem::QueryResult r = mClient->WaitFor(ticket, std::chrono::milliseconds(mSettings.queryDeadlineMs));
+    const double waited = MsSince(t0);
+    const uint64_t failedInRow = RecordLoopAnswer(pKF, r);
+    if(r.state != humem::QueryState::kAnswered)
+    {
+        LogLoopNotAnswered(pKF, r, waited, failedInRow);
+        if(mSettings.dbow2Fallback)
+            KeyFrameDatabase::DetectNBestCandidates(pKF, vpLoopCand, vpMergeCand, nNumCandidates);
+        return;
+    }
+    SortLoopCandidates(pKF, pMap, r, waited, vpLoopCand, vpMergeCand, nNumCandidates);
+}
+
+humem::Ticket VprKeyFrameDatabase::LoopTicketFor(KeyFrame* pKF, Map* pMap)
+{
     humem::Ticket ticket = 0;
     bool inserted = false;
     {
@@ -618,49 +643,45 @@ void VprKeyFrameDatabase::DetectNBestCandidates(KeyFrame *pKF, std::vector<KeyFr
         std::lock_guard<std::mutex> lock(mMutexHm);
         ++mCounters.loopQueries;
     }
-    if(ticket == 0)
-    {
-        if(mSettings.dbow2Fallback)
-            KeyFrameDatabase::DetectNBestCandidates(pKF, vpLoopCand, vpMergeCand, nNumCandidates);
-        return;
-    }
+    return ticket;
+}
 
-    const std::chrono::steady_clock::time_point t0 = std::chrono::steady_clock::now();
-    humem::QueryResult r = mClient->WaitFor(ticket, std::chrono::milliseconds(mSettings.queryDeadlineMs));
-    const double waited = MsSince(t0);
-    uint64_t failedInRow = 0;
+uint64_t VprKeyFrameDatabase::RecordLoopAnswer(KeyFrame* pKF, const humem::QueryResult &r)
+{
+    std::lock_guard<std::mutex> lock(mMutexHm);
+    if(r.state == humem::QueryState::kAnswered)
     {
-        std::lock_guard<std::mutex> lock(mMutexHm);
-        if(r.state == humem::QueryState::kAnswered)
-        {
-            ++mCounters.loopAnswered;
-            mCounters.loopCandidates += r.candidates.size();
-        }
-        else
-            ++mCounters.loopNotAnswered;
-        mFailedQueriesInRow = r.state == humem::QueryState::kFailed ? mFailedQueriesInRow + 1 : 0;
-        failedInRow = mFailedQueriesInRow;
-        std::unordered_map<unsigned long, Entry>::iterator it = mEntries.find(pKF->mnId);
-        if(it != mEntries.end() && it->second.kf == pKF)
-            it->second.loopTicket = 0;
+        ++mCounters.loopAnswered;
+        mCounters.loopCandidates += r.candidates.size();
     }
-    if(r.state != humem::QueryState::kAnswered)
-    {
-        std::ostringstream m;
-        m << "loop query KF " << pKF->mnId << ": " << humem::QueryStateName(r.state);
-        if(!r.status.ok())
-            m << " (" << r.status.ToString() << ")";
-        m << " after waiting " << std::fixed << std::setprecision(0) << waited << " ms: no candidates"
-          << (mSettings.dbow2Fallback ? ", DBoW2 fallback" : "");
-        if(failedInRow > 1)
-            m << " (" << failedInRow << " failed in a row)";
-        const bool warn = failedInRow == 1 || (failedInRow > 0 && failedInRow % 50 == 0);
-        Log(warn ? 0 : 2, m.str());
-        if(mSettings.dbow2Fallback)
-            KeyFrameDatabase::DetectNBestCandidates(pKF, vpLoopCand, vpMergeCand, nNumCandidates);
-        return;
-    }
+    else
+        ++mCounters.loopNotAnswered;
+    mFailedQueriesInRow = r.state == humem::QueryState::kFailed ? mFailedQueriesInRow + 1 : 0;
+    std::unordered_map<unsigned long, Entry>::iterator it = mEntries.find(pKF->mnId);
+    if(it != mEntries.end() && it->second.kf == pKF)
+        it->second.loopTicket = 0;
+    return mFailedQueriesInRow;
+}
 
+void VprKeyFrameDatabase::LogLoopNotAnswered(KeyFrame* pKF, const humem::QueryResult &r, double waited,
+                                             uint64_t failedInRow)
+{
+    std::ostringstream m;
+    m << "loop query KF " << pKF->mnId << ": " << humem::QueryStateName(r.state);
+    if(!r.status.ok())
+        m << " (" << r.status.ToString() << ")";
+    m << " after waiting " << std::fixed << std::setprecision(0) << waited << " ms: no candidates"
+      << (mSettings.dbow2Fallback ? ", DBoW2 fallback" : "");
+    if(failedInRow > 1)
+        m << " (" << failedInRow << " failed in a row)";
+    const bool warn = failedInRow == 1 || (failedInRow > 0 && failedInRow % 50 == 0);
+    Log(warn ? 0 : 2, m.str());
+}
+
+void VprKeyFrameDatabase::SortLoopCandidates(KeyFrame* pKF, Map* pMap, const humem::QueryResult &r, double waited,
+                                             std::vector<KeyFrame*> &vpLoopCand, std::vector<KeyFrame*> &vpMergeCand,
+                                             int nNumCandidates)
+{
     std::set<KeyFrame*> spConnected = pKF->GetConnectedKeyFrames();
     std::set<KeyFrame*> spAdded;
     const std::string session = mClient->session_id();

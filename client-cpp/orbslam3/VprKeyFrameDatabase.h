@@ -149,6 +149,18 @@ private:
     void Log(int level, const std::string &message);
     std::string DescribeCandidate(const humem::Candidate &c) const;
 
+    // The steps of DetectNBestCandidates (none holds mMutexHm while calling the client):
+    // pKF's loop ticket from NewKeyFrame, else a query submitted now if pKF is stored (0: none).
+    humem::Ticket LoopTicketFor(KeyFrame* pKF, Map* pMap);
+    // Counts the loop answer and clears pKF's ticket; returns the failed queries in a row.
+    uint64_t RecordLoopAnswer(KeyFrame* pKF, const humem::QueryResult &r);
+    // Logs an unanswered loop query (a warning for the 1st failure in a row and every 50th).
+    void LogLoopNotAnswered(KeyFrame* pKF, const humem::QueryResult &r, double waited, uint64_t failedInRow);
+    // Puts the answer's live, non-covisible candidates in vpLoopCand (pMap) or vpMergeCand, and logs them.
+    void SortLoopCandidates(KeyFrame* pKF, Map* pMap, const humem::QueryResult &r, double waited,
+                            std::vector<KeyFrame*> &vpLoopCand, std::vector<KeyFrame*> &vpMergeCand,
+                            int nNumCandidates);
+
     const HuMemSettings mSettings;
     std::unique_ptr<humem::VprClient> mClient;
     humem::ImageCache mImages;
