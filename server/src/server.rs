@@ -64,11 +64,20 @@ pub async fn serve(config: Config) -> anyhow::Result<()> {
     health
         .set_serving::<PlaceRecognitionServer<PlaceRecognitionService>>()
         .await;
-    let reflection = tonic_reflection::server::Builder::configure()
-        .register_encoded_file_descriptor_set(crate::proto::FILE_DESCRIPTOR_SET)
-        .register_encoded_file_descriptor_set(tonic_health::pb::FILE_DESCRIPTOR_SET)
+    // Reflection in both versions: `v1` for grpcurl and current clients,
+    // `v1alpha` for the many tools (Python's grpcio-reflection among them)
+    // that still speak only that one.
+    let reflection = || {
+        tonic_reflection::server::Builder::configure()
+            .register_encoded_file_descriptor_set(crate::proto::FILE_DESCRIPTOR_SET)
+            .register_encoded_file_descriptor_set(tonic_health::pb::FILE_DESCRIPTOR_SET)
+    };
+    let reflection_v1 = reflection()
         .build_v1()
-        .context("building the reflection service")?;
+        .context("building the reflection service (v1)")?;
+    let reflection_v1alpha = reflection()
+        .build_v1alpha()
+        .context("building the reflection service (v1alpha)")?;
 
     metrics::init();
     let (stop_tx, stop_rx) = tokio::sync::watch::channel(false);
@@ -95,7 +104,8 @@ pub async fn serve(config: Config) -> anyhow::Result<()> {
             crate::api::transport_status::map_transport_status,
         ))
         .add_service(health_service)
-        .add_service(reflection)
+        .add_service(reflection_v1)
+        .add_service(reflection_v1alpha)
         .add_service(api)
         // TCP_NODELAY: without it, small answers wait ~40 ms for delayed
         // ACKs (Nagle), which `humem load` showed on every call.

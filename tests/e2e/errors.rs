@@ -291,3 +291,53 @@ async fn health_and_reflection_answer() {
     let names: Vec<_> = list.service.iter().map(|s| s.name.as_str()).collect();
     assert!(names.contains(&"humem.v1.PlaceRecognition"), "{names:?}");
 }
+
+/// Reflection `v1alpha`, through a client nobody in this project wrote:
+/// Python's `grpcio-reflection` (`tools/reflection_check.py`) lists the
+/// services and describes the API's methods and a message's fields.
+#[test]
+fn reflection_v1alpha_lists_and_describes() {
+    let python = crate::harness::models_dir().join(".venv/bin/python");
+    if !python.exists() {
+        eprintln!(
+            "skipped: {} is absent (run scripts/setup-models.sh)",
+            python.display()
+        );
+        return;
+    }
+    let dir = tempfile::tempdir().unwrap();
+    let server = Server::start(dir.path());
+    let address = server.url.trim_start_matches("http://");
+    let script =
+        std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("../tools/reflection_check.py");
+    let output = std::process::Command::new(&python)
+        .arg(script)
+        .arg(address)
+        .output()
+        .unwrap();
+    let stdout = String::from_utf8_lossy(&output.stdout);
+    assert!(
+        output.status.success(),
+        "{stdout}{}",
+        String::from_utf8_lossy(&output.stderr)
+    );
+    let lines: Vec<&str> = stdout.lines().collect();
+    for expected in [
+        "service humem.v1.PlaceRecognition",
+        "service grpc.health.v1.Health",
+        "method Insert(humem.v1.InsertRequest) -> humem.v1.InsertResponse",
+        "method Query(humem.v1.QueryRequest) -> humem.v1.QueryResponse",
+        "method Stats(humem.v1.StatsRequest) -> humem.v1.StatsResponse",
+    ] {
+        assert!(
+            lines.contains(&expected),
+            "{expected} missing from\n{stdout}"
+        );
+    }
+    assert!(
+        lines
+            .iter()
+            .any(|l| l.starts_with("field humem.v1.QueryRequest.")),
+        "{stdout}"
+    );
+}
