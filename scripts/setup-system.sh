@@ -7,8 +7,8 @@
 #         systemd-analyze (deployment checks), gRPC C++, protobuf and GoogleTest
 #         (client-cpp)
 # The Rust toolchain (with rustfmt and clippy) and Python 3.11 are expected on
-# the machine. Installs with apt-get as root, or through sudo; otherwise it
-# names what is missing and stops.
+# the machine. Installs with apt-get as root, or through passwordless sudo;
+# otherwise it stops at once and prints the one command to run first.
 #
 #   scripts/setup-system.sh run|test
 set -euo pipefail
@@ -28,14 +28,19 @@ elif [ "$purpose" != run ]; then
     exit 2
 fi
 [ ${#missing[@]} -eq 0 ] && exit 0
-echo "setup-system: installing ${missing[*]}"
+install=(apt-get install -y --no-install-recommends "${missing[@]}")
 if [ "$(id -u)" -eq 0 ]; then
     sudo=()
-elif command -v sudo >/dev/null; then
-    sudo=(sudo)
+elif command -v sudo >/dev/null && sudo -n true 2>/dev/null; then
+    sudo=(sudo -n)  # passwordless sudo: never waits at a prompt
 else
-    echo "setup-system: ERROR: missing Debian packages ${missing[*]}; install them as root" >&2
+    # Stop at once with the one command to run first, rather than wait at a
+    # password prompt or fail halfway through a build.
+    echo "setup-system: missing Debian packages: ${missing[*]}" >&2
+    echo "setup-system: run this first, then this command again:" >&2
+    echo "    sudo apt-get update && sudo ${install[*]}" >&2
     exit 1
 fi
+echo "setup-system: installing ${missing[*]}"
 "${sudo[@]}" apt-get update -qq
-DEBIAN_FRONTEND=noninteractive "${sudo[@]}" apt-get install -y -qq --no-install-recommends "${missing[@]}"
+DEBIAN_FRONTEND=noninteractive "${sudo[@]}" "${install[@]}" -qq
