@@ -7,4 +7,5 @@ set -euo pipefail
 cd "$(dirname "$0")/.."
 scripts/setup-system.sh run
 scripts/setup-models.sh
-exec cargo run --release --locked -- serve "$@"
+# The service alone (`--no-default-features`: without the evaluation harness).
+exec cargo run --release --locked -p humem --no-default-features -- serve "$@"

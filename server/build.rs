@@ -9,8 +9,12 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
     let proto_file = proto_root.join("humem/v1/humem.proto");
     println!("cargo:rerun-if-changed={}", proto_file.display());
 
-    // SAFETY: build scripts are single-threaded.
-    unsafe { std::env::set_var("PROTOC", protoc_bin_vendored::protoc_bin_path()?) };
+    // SAFETY: build scripts are single-threaded, so nothing reads the
+    // environment concurrently; `set_var` is `unsafe` only for that reason.
+    #[allow(unsafe_code)]
+    unsafe {
+        std::env::set_var("PROTOC", protoc_bin_vendored::protoc_bin_path()?)
+    };
 
     let out_dir = PathBuf::from(std::env::var("OUT_DIR")?);
     let descriptor_path = out_dir.join("humem_descriptor.bin");

@@ -11,8 +11,8 @@ use figment::providers::{Env, Format, Serialized, Toml};
 use figment::Figment;
 use serde::{Deserialize, Serialize};
 
-use crate::perception::config::PerceptionConfig;
-use crate::vpr::VprParams;
+use humem_core::vpr::VprParams;
+use humem_perception::config::PerceptionConfig;
 
 /// The whole configuration.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize, Default)]
@@ -256,7 +256,7 @@ calibration = \"raw\"\ng_xt = 0.5\n",
         )
         .unwrap();
         let config = Config::load(Some(&file), Figment::new()).unwrap();
-        assert_eq!(config.vpr.calibration, crate::vpr::Calibration::Raw);
+        assert_eq!(config.vpr.calibration, humem_core::vpr::Calibration::Raw);
         assert_eq!(config.vpr.threshold(), 0.70);
         assert_eq!(config.vpr.g_xt, 0.5);
         for (text, field) in [

@@ -1,28 +1,30 @@
-//! HuMem: semantic place recognition for visual SLAM, as a gRPC service.
+//! HuMem's gRPC service: the API, the orchestration of each request, the
+//! configuration, the metrics, and the server that wires them together.
 //!
-//! Layers, each depending only on those below it:
-//! - [`api`]: the tonic service, request validation, proto ⇄ domain conversion;
-//! - [`pipeline`]: the orchestration of one request over the store and scoring;
-//! - [`perception`]: the ONNX models that turn images into features;
-//! - [`vpr`]: HuMem-VPR scoring and ranking, pure functions over plain data;
-//! - [`store`]: durable sled storage and the in-memory search index;
-//! - [`keyframe`]: the semantic keyframe all of them speak.
+//! This crate is the service's top layer. Below it, and unaware of it, sit
+//! `humem-core` (keyframes, scoring, the index), `humem-store` (sled) and
+//! `humem-perception` (the models); above it only the `humem` binary and
+//! the evaluation harness. Within it, each module depends only on those
+//! listed after it:
 //!
-//! [`server`] wires them into a running service, [`cli`] is the command-line
-//! client and [`config`] the configuration.
+//! - [`server`]: builds the store, perception and service from a
+//!   [`config::Config`], serves gRPC (with health and reflection) and
+//!   metrics, and shuts down cleanly;
+//! - [`api`]: the tonic service, a thin adapter: validates a request, hands
+//!   it to the pipeline, converts the answer;
+//! - [`pipeline`]: what one request does, in domain types: admission, image
+//!   resolution, blocking work, the query over the index, latest-wins;
+//! - [`metrics`]: the Prometheus metrics and their HTTP endpoint;
+//! - [`config`]: every setting, from TOML and `HUMEM_*` variables, validated;
+//! - [`client`]: connecting to a server, for this workspace's own clients;
+//! - [`proto`]: the generated API types and services.
 
 pub mod api;
-pub mod bench;
-pub mod cli;
+pub mod client;
 pub mod config;
-pub mod eval;
-pub mod keyframe;
 pub mod metrics;
-pub mod perception;
 pub mod pipeline;
 pub mod server;
-pub mod store;
-pub mod vpr;
 
 /// The generated gRPC API (`proto/humem/v1/humem.proto`), with its proto3
 /// JSON mapping for the command-line client.

@@ -16,7 +16,8 @@ use prometheus::{
     Registry, TextEncoder,
 };
 
-use crate::store::Store;
+use humem_core::observe::{QueueObserver, SharedObserver};
+use humem_store::Store;
 
 /// The registry every HuMem metric is in.
 pub static REGISTRY: LazyLock<Registry> = LazyLock::new(Registry::new);
@@ -245,6 +246,26 @@ pub fn render(store: &Store) -> String {
 
 /// Touches every static so all metric families exist from the start (a
 /// dashboard should see zeros, not missing series).
+/// The queues of the store's writer and of the model batchers, reported
+/// into [`QUEUE_DEPTH`] and [`BATCH_SIZE`] by queue name.
+#[derive(Debug, Clone, Copy)]
+struct PrometheusQueues;
+
+impl QueueObserver for PrometheusQueues {
+    fn depth_changed(&self, queue: &'static str, delta: i64) {
+        QUEUE_DEPTH.with_label_values(&[queue]).add(delta);
+    }
+
+    fn batch_ran(&self, queue: &'static str, size: usize) {
+        BATCH_SIZE.with_label_values(&[queue]).observe(size as f64);
+    }
+}
+
+/// The observer the server hands to the store and to perception.
+pub fn queue_observer() -> SharedObserver {
+    std::sync::Arc::new(PrometheusQueues)
+}
+
 pub fn init() {
     BUILD_INFO
         .with_label_values(&[env!("CARGO_PKG_VERSION")])

@@ -10,10 +10,10 @@ use crate::api::validate::Limits;
 use crate::api::PlaceRecognitionService;
 use crate::config::Config;
 use crate::metrics;
-use crate::perception::Perception;
 use crate::pipeline::latest_wins::LatestWins;
 use crate::proto::place_recognition_server::PlaceRecognitionServer;
-use crate::store::Store;
+use humem_perception::Perception;
+use humem_store::Store;
 
 /// Runs the service until a shutdown signal.
 pub async fn serve(config: Config) -> anyhow::Result<()> {
@@ -23,10 +23,11 @@ pub async fn serve(config: Config) -> anyhow::Result<()> {
             config.store.data_dir.display()
         )
     })?;
-    let store = Store::open(
+    let store = Store::open_observed(
         &config.store.data_dir,
         config.store.descriptor_dim,
         config.store.write_queue,
+        metrics::queue_observer(),
     )
     .with_context(|| format!("opening the store in {}", config.store.data_dir.display()))?;
 
@@ -39,7 +40,9 @@ pub async fn serve(config: Config) -> anyhow::Result<()> {
     let perception = if config.perception.enabled {
         let perception_config = config.perception.clone();
         let top_k = config.store.scene_top_k;
-        let perception = tokio::task::spawn_blocking(move || Perception::load(&perception_config, top_k))
+        let perception = tokio::task::spawn_blocking(move || {
+            Perception::load_observed(&perception_config, top_k, metrics::queue_observer())
+        })
             .await
             .context("loading the perception models")?
             .context("loading the perception models (set perception.enabled = false to serve precomputed features only)")?;

@@ -3,7 +3,7 @@
 use std::io::Write;
 use std::process::{Command, Stdio};
 
-use humem::proto;
+use humem_server::proto;
 
 use crate::harness::Server;
 use crate::scenes::{self, World};

@@ -7,14 +7,14 @@ use std::io::Cursor;
 use std::path::Path;
 use std::process::Command;
 
-use humem::proto;
+use humem_server::proto;
 
 use crate::harness::{models_dir, Server};
 
 /// Generates the tiny models into `dir`.
 fn tiny_models(dir: &Path) {
     let status = Command::new(models_dir().join(".venv/bin/python"))
-        .arg(Path::new(env!("CARGO_MANIFEST_DIR")).join("../tools/make_tiny_yolo.py"))
+        .arg(crate::harness::repo_root().join("tools/make_tiny_yolo.py"))
         .arg(dir)
         .status()
         .expect("running tools/make_tiny_yolo.py with the models venv");

@@ -1,7 +1,7 @@
 //! Nothing acknowledged is lost: not across a clean restart, not when the
 //! server is killed with SIGKILL right after acknowledging.
 
-use humem::proto;
+use humem_server::proto;
 
 use crate::harness::Server;
 use crate::scenes::{self, id, query_stored, World};

@@ -1,7 +1,7 @@
 //! Bad requests get INVALID_ARGUMENT naming the field and change nothing;
 //! the standard health and reflection services answer.
 
-use humem::proto;
+use humem_server::proto;
 use tonic::Code;
 
 use crate::harness::Server;
@@ -308,8 +308,7 @@ fn reflection_v1alpha_lists_and_describes() {
     let dir = tempfile::tempdir().unwrap();
     let server = Server::start(dir.path());
     let address = server.url.trim_start_matches("http://");
-    let script =
-        std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("../tools/reflection_check.py");
+    let script = crate::harness::repo_root().join("tools/reflection_check.py");
     let output = std::process::Command::new(&python)
         .arg(script)
         .arg(address)

@@ -10,8 +10,8 @@
 use std::path::{Path, PathBuf};
 use std::process::Command;
 
-use humem::perception::config::PerceptionConfig;
-use humem::perception::{ImageInput, Perception};
+use humem_perception::config::PerceptionConfig;
+use humem_perception::{ImageInput, Perception};
 
 use crate::harness::{datasets, models_dir};
 
@@ -99,7 +99,7 @@ fn dataset_frames() -> Vec<PathBuf> {
 
 /// The Python reference's descriptors, in the order of `images`.
 fn reference(python: &Path, model: &Path, [w, h]: [u32; 2], images: &[PathBuf]) -> Vec<Vec<f32>> {
-    let script = Path::new(env!("CARGO_MANIFEST_DIR")).join("../tools/reference_descriptor.py");
+    let script = crate::harness::repo_root().join("tools/reference_descriptor.py");
     let output = Command::new(python)
         .arg(script)
         .arg(model)

@@ -6,17 +6,22 @@ use std::process::{Child, Command, Stdio};
 use std::sync::mpsc;
 use std::time::Duration;
 
-use humem::proto::place_recognition_client::PlaceRecognitionClient;
+use humem_server::proto::place_recognition_client::PlaceRecognitionClient;
 use tonic::transport::Channel;
+
+/// The repository's root (the e2e tests belong to `crates/humem`).
+pub fn repo_root() -> PathBuf {
+    Path::new(env!("CARGO_MANIFEST_DIR")).join("../..")
+}
 
 /// The repository's models folder, filled by `scripts/setup-models.sh`.
 pub fn models_dir() -> PathBuf {
-    Path::new(env!("CARGO_MANIFEST_DIR")).join("../models")
+    repo_root().join("models")
 }
 
 /// The shared data sets, if this checkout has `../shared` beside it.
 pub fn datasets() -> Option<PathBuf> {
-    let dir = Path::new(env!("CARGO_MANIFEST_DIR")).join("../../shared/datasets");
+    let dir = repo_root().join("../shared/datasets");
     if dir.is_dir() {
         Some(dir)
     } else {

@@ -6,7 +6,7 @@ use std::collections::BTreeMap;
 use std::io::Cursor;
 use std::path::Path;
 
-use humem::proto;
+use humem_server::proto;
 
 use crate::harness::{datasets, Server};
 
@@ -154,7 +154,7 @@ async fn rendered_text_is_read_back_and_grounds_a_match() {
         height: rgb.height(),
         data: rgb
             .pixels()
-            .map(|p| humem::perception::image::luma(p.0))
+            .map(|p| humem_perception::image::luma(p.0))
             .collect(),
         stride: 0,
     };

@@ -5,7 +5,7 @@
 use std::io::Cursor;
 use std::time::Duration;
 
-use humem::proto;
+use humem_server::proto;
 
 use crate::harness::Server;
 

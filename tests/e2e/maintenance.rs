@@ -1,7 +1,7 @@
 //! Erase, map reset, session reset and pose updates change what queries see
 //! and persist across a restart.
 
-use humem::proto;
+use humem_server::proto;
 
 use crate::harness::Server;
 use crate::scenes::{self, World};

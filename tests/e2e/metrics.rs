@@ -1,7 +1,7 @@
 //! The Prometheus endpoint of the real binary moves with traffic, and the
 //! ingest queue pushes back instead of growing under a flood.
 
-use humem::proto;
+use humem_server::proto;
 
 use crate::harness::Server;
 use crate::scenes::{self, World};

@@ -1,7 +1,7 @@
 //! Insert a few hundred keyframes, query, and check the ranking, the
 //! eligibility rule and the scopes.
 
-use humem::proto;
+use humem_server::proto;
 
 use crate::harness::Server;
 use crate::scenes::{self, id, insert_all, query_stored, World};

@@ -2,7 +2,7 @@
 //! descriptors, revisited with observation noise, so that the right answer
 //! of every query is known.
 
-use humem::proto;
+use humem_server::proto;
 
 /// Descriptor length used by the tests.
 pub const DIM: usize = 64;

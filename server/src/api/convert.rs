@@ -5,12 +5,12 @@ use tonic::Status;
 
 use std::time::Duration;
 
-use crate::keyframe::{Features, Pose};
-use crate::perception::batcher::BatchError;
-use crate::perception::PerceptionError;
 use crate::pipeline::query::{Candidate, QueryError, QueryOutcome};
 use crate::proto;
-use crate::store::StoreError;
+use humem_core::keyframe::{Features, Pose};
+use humem_perception::batcher::BatchError;
+use humem_perception::PerceptionError;
+use humem_store::StoreError;
 
 pub fn pose(p: &Pose) -> proto::Pose {
     let [x, y, z] = p.translation;
@@ -181,8 +181,9 @@ pub fn query_response(outcome: &QueryOutcome) -> proto::QueryResponse {
     }
 }
 
-impl From<StoreError> for Status {
-    fn from(e: StoreError) -> Status {
+/// The status a store error answers with.
+pub fn store_status(e: StoreError) -> Status {
+    {
         match e {
             StoreError::DimensionMismatch { .. } => {
                 Status::invalid_argument(format!("features.global_descriptor: {e}"))

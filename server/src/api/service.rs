@@ -12,15 +12,15 @@ use tonic::{Request, Response, Status};
 
 use super::convert;
 use super::validate::{self, InvalidField, Limits, Observation, PendingKeyframe};
-use crate::keyframe::{Features, SemanticKeyframe};
 use crate::metrics;
-use crate::perception::Perception;
 use crate::pipeline;
 use crate::pipeline::latest_wins::{Admission, LatestWins, SlotKey};
 use crate::proto;
 use crate::proto::place_recognition_server::PlaceRecognition;
-use crate::store::{MapKey, Mutation, Store};
-use crate::vpr::VprParams;
+use humem_core::keyframe::{Features, SemanticKeyframe};
+use humem_core::vpr::VprParams;
+use humem_perception::Perception;
+use humem_store::{MapKey, Mutation, Store};
 
 /// The service state shared by all requests.
 #[derive(Clone)]
@@ -147,7 +147,11 @@ impl PlaceRecognitionService {
         let (keyframes, mut resolved) = self.resolve_all(vec![pending]).await?;
         self.check_dims(|_| "keyframe".into(), &keyframes)?;
         let (features, timings) = resolved.pop().unwrap_or_default();
-        let outcome = self.store.apply(Mutation::Insert(keyframes)).await?;
+        let outcome = self
+            .store
+            .apply(Mutation::Insert(keyframes))
+            .await
+            .map_err(convert::store_status)?;
         metrics::KEYFRAMES_INSERTED.inc();
         metrics::observe_stages(&timings);
         Ok(Response::new(proto::InsertResponse {
@@ -171,7 +175,11 @@ impl PlaceRecognitionService {
         }
         self.check_dims(|i| format!("keyframes[{i}]"), &keyframes)?;
         let count = keyframes.len() as u64;
-        let outcome = self.store.apply(Mutation::Insert(keyframes)).await?;
+        let outcome = self
+            .store
+            .apply(Mutation::Insert(keyframes))
+            .await
+            .map_err(convert::store_status)?;
         metrics::KEYFRAMES_INSERTED.inc_by(count);
         Ok(Response::new(proto::InsertBatchResponse {
             replaced: u32::try_from(outcome.replaced).unwrap_or(u32::MAX),
@@ -260,7 +268,8 @@ impl PlaceRecognitionService {
                 session,
                 keyframe_ids,
             })
-            .await?;
+            .await
+            .map_err(convert::store_status)?;
         Ok(Response::new(proto::EraseResponse {
             erased: outcome.affected,
         }))
@@ -280,7 +289,8 @@ impl PlaceRecognitionService {
         let outcome = self
             .store
             .apply(Mutation::ResetMap(MapKey { session, map_id }))
-            .await?;
+            .await
+            .map_err(convert::store_status)?;
         Ok(Response::new(proto::ResetMapResponse {
             erased: outcome.affected,
         }))
@@ -293,7 +303,11 @@ impl PlaceRecognitionService {
     ) -> Result<Response<proto::ResetSessionResponse>, Status> {
         let r = request.get_ref();
         let session = validate::session("", &r.robot_id, &r.session_id)?;
-        let outcome = self.store.apply(Mutation::ResetSession(session)).await?;
+        let outcome = self
+            .store
+            .apply(Mutation::ResetSession(session))
+            .await
+            .map_err(convert::store_status)?;
         Ok(Response::new(proto::ResetSessionResponse {
             erased: outcome.affected,
         }))
@@ -308,7 +322,8 @@ impl PlaceRecognitionService {
         let outcome = self
             .store
             .apply(Mutation::UpdatePoses { session, updates })
-            .await?;
+            .await
+            .map_err(convert::store_status)?;
         Ok(Response::new(proto::UpdatePosesResponse {
             updated: outcome.affected,
             missing_keyframe_ids: outcome.missing,
@@ -338,7 +353,7 @@ impl PlaceRecognitionService {
             descriptor_dim,
             maps,
             disk_bytes: self.store.disk_bytes(),
-            format_version: u32::from(crate::store::codec::FORMAT_VERSION),
+            format_version: u32::from(humem_store::codec::FORMAT_VERSION),
             server_version: env!("CARGO_PKG_VERSION").into(),
         }))
     }

@@ -9,14 +9,14 @@
 
 use std::collections::HashSet;
 
-use crate::keyframe::{
+use crate::proto;
+use humem_core::keyframe::{
     Features, KeyframeKey, ObjectObservation, Pose, SceneClass, SemanticKeyframe, SessionKey,
     TextObservation,
 };
-use crate::perception::ImageInput;
-use crate::proto;
-use crate::store::PoseUpdate;
-use crate::vpr::{Layers, MapRef, Scope};
+use humem_core::vpr::{Layers, MapRef, Scope};
+use humem_perception::ImageInput;
+use humem_store::PoseUpdate;
 
 /// Largest descriptor accepted.
 pub const MAX_DESCRIPTOR_LEN: usize = 8192;
@@ -192,13 +192,13 @@ pub fn features(field: &str, f: &proto::Features, limits: &Limits) -> Result<Fea
 
 /// A thumbnail's bytes as the signed values they encode.
 fn appearance(field: &str, bytes: &[u8]) -> Result<Vec<i8>> {
-    if !bytes.is_empty() && bytes.len() != crate::vpr::appearance::LEN {
+    if !bytes.is_empty() && bytes.len() != humem_core::vpr::appearance::LEN {
         return Err(invalid(
             field,
             format!(
                 "{} bytes, expected none or {} (64x48)",
                 bytes.len(),
-                crate::vpr::appearance::LEN
+                humem_core::vpr::appearance::LEN
             ),
         ));
     }
@@ -359,7 +359,7 @@ impl PendingKeyframe {
 /// An image: the encoding is known and there are bytes; whether they decode
 /// is found out by perception.
 pub fn image(field: &str, image: proto::Image) -> Result<ImageInput> {
-    use crate::perception::image::Encoding;
+    use humem_perception::image::Encoding;
     use proto::image::Encoding as Wire;
     let encoding = match enumeration::<Wire>(&format!("{field}.encoding"), image.encoding)? {
         Wire::Unspecified => Encoding::Auto,

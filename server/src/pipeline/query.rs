@@ -10,9 +10,9 @@ use std::cell::Cell;
 use std::time::Duration;
 
 use crate::api::validate::{InvalidField, Observation, QuerySpec};
-use crate::keyframe::{Features, KeyframeKey, Pose};
-use crate::store::Index;
-use crate::vpr::{
+use humem_core::index::Index;
+use humem_core::keyframe::{Features, KeyframeKey, Pose};
+use humem_core::vpr::{
     self, CandidateMeta, Contradiction, KeyframeMemory, MissingObject, NullModel, ObjectMatch,
     QueryContext, QueryObservation, ScalHit, Scope, TextConflict, TextMatch, VprParams,
 };

@@ -1,0 +1,19 @@
+//! HuMem's core: what a place is and how places are compared, as plain data
+//! and pure functions, with no I/O, no models and no network.
+//!
+//! Every other crate speaks these types; this one depends on none of them,
+//! so scoring can be tested and benchmarked on its own, and a change to the
+//! server, the store or the models can never reach into the scoring.
+//!
+//! - [`keyframe`]: the semantic keyframe of the paper and its owner (robot,
+//!   session, map), the unit everything stores and ranks;
+//! - [`vpr`]: HuMem-VPR scoring (SCAL, OSRL, OGTL, contradiction, fusion)
+//!   and the ranking of one query;
+//! - [`index`]: the in-memory index the scan runs over, kept by the store;
+//! - [`observe`]: the hook through which queues report their depth and batch
+//!   sizes, so lower layers never read the server's metrics.
+
+pub mod index;
+pub mod keyframe;
+pub mod observe;
+pub mod vpr;

@@ -1,0 +1,403 @@
+//! `humem bench perception`: how long each model takes per batch size, and
+//! what batching gains when many clients send images at once, measured
+//! against unbatched inference in the same run, on real images.
+//!
+//! Part 1 calls each model directly (no queue) with batches of 1, 4 and 8
+//! inputs, and text detection at the camera's aspect ratio against the
+//! fixed 640x480 letterbox it replaced. Part 2 runs the whole perception pipeline for concurrent
+//! clients twice, once with batching off (`max_batch = 1`) and once with
+//! the configured batching, and reports the throughput ratio. Part 3 breaks
+//! the batched pipeline down by stage.
+
+use std::path::{Path, PathBuf};
+use std::sync::Arc;
+use std::time::{Duration, Instant};
+
+use anyhow::{bail, Context};
+
+use humem_perception::batcher::BatchModel;
+use humem_perception::config::OcrConfig;
+use humem_perception::geometry::Rect;
+use humem_perception::image::{self as img, EncodedImage, Encoding};
+use humem_perception::model::{ImageModel, Planes};
+use humem_perception::ocr::{self, canvas, OcrModels};
+use humem_perception::{runtime, ImageInput, Perception};
+use humem_server::config::Config;
+
+/// Options of `humem bench perception`.
+#[derive(Debug, Clone, clap::Args)]
+pub struct PerceptionBench {
+    /// Folder of JPEG/PNG images (default: ../shared/datasets/rtabmap-loop/sequence).
+    #[arg(long)]
+    pub images: Option<PathBuf>,
+    /// Concurrent clients in part 2.
+    #[arg(long, default_value_t = 8)]
+    pub clients: usize,
+    /// Images each client sends in part 2.
+    #[arg(long, default_value_t = 12)]
+    pub requests: usize,
+    /// Timed runs per model and batch size in part 1.
+    #[arg(long, default_value_t = 10)]
+    pub repeats: usize,
+    /// `max_batch` of the batched run in part 2.
+    #[arg(long, default_value_t = 8)]
+    pub batch: usize,
+}
+
+/// Mean and 95th percentile.
+fn summary(samples: &[Duration]) -> (f64, f64) {
+    if samples.is_empty() {
+        return (0.0, 0.0);
+    }
+    let mut ms: Vec<f64> = samples.iter().map(|d| d.as_secs_f64() * 1e3).collect();
+    ms.sort_by(f64::total_cmp);
+    let mean = ms.iter().sum::<f64>() / ms.len() as f64;
+    let p95 = ms[((ms.len() as f64 * 0.95).ceil() as usize).clamp(1, ms.len()) - 1];
+    (mean, p95)
+}
+
+fn load_images(dir: &Path) -> anyhow::Result<Vec<Vec<u8>>> {
+    let mut paths = crate::dataset::image_paths(dir)?;
+    paths.truncate(32);
+    paths
+        .iter()
+        .map(|p| std::fs::read(p).with_context(|| format!("reading {}", p.display())))
+        .collect()
+}
+
+fn decode(bytes: &[u8]) -> anyhow::Result<image::RgbImage> {
+    Ok(img::decode(&EncodedImage {
+        encoding: Encoding::Auto,
+        data: bytes,
+        width: 0,
+        height: 0,
+        stride: 0,
+    })?)
+}
+
+/// Times `run` on batches of 1, 4 and 8 inputs made by `input`.
+fn time_model<M: BatchModel>(
+    name: &str,
+    model: &mut M,
+    input: &dyn Fn(usize) -> M::Input,
+    repeats: usize,
+) -> anyhow::Result<()> {
+    let mut one = Duration::ZERO;
+    for batch in [1usize, 4, 8] {
+        let make = || (0..batch).map(input).collect::<Vec<_>>();
+        for _ in 0..2 {
+            model.run(make())?;
+        }
+        let mut samples = Vec::with_capacity(repeats);
+        for _ in 0..repeats {
+            let inputs = make();
+            let started = Instant::now();
+            model.run(inputs)?;
+            samples.push(started.elapsed());
+        }
+        let (mean, p95) = summary(&samples);
+        let per_item = mean / batch as f64;
+        if batch == 1 {
+            one = Duration::from_secs_f64(mean / 1e3);
+        }
+        let speedup = one.as_secs_f64() * 1e3 / per_item;
+        println!("{name:<18} {batch:>5} {mean:>10.1} {p95:>10.1} {per_item:>12.2} {speedup:>9.2}x");
+    }
+    Ok(())
+}
+
+/// The whole of `image` as a region.
+fn whole(image: &image::RgbImage) -> Rect {
+    Rect {
+        x0: 0.0,
+        y0: 0.0,
+        x1: image.width() as f32,
+        y1: image.height() as f32,
+    }
+}
+
+/// Text detection per image at the camera's aspect ratio (the configured
+/// long side) against the fixed 640x480 letterbox it replaced, one image at
+/// a time, alternating, in this run.
+fn compare_detection_shapes(
+    detector: &mut ImageModel,
+    decoded: &[image::RgbImage],
+    config: &OcrConfig,
+    repeats: usize,
+) -> anyhow::Result<()> {
+    const BEFORE: [usize; 2] = [640, 480];
+    let letterboxed = |image: &image::RgbImage| {
+        let long = (BEFORE[0] as f32 / image.width() as f32)
+            .min(BEFORE[1] as f32 / image.height() as f32)
+            * image.width().max(image.height()) as f32;
+        let (planes, _) = canvas::detector_input(image, whole(image), long.round() as u32);
+        let mut data = vec![0.0f32; 3 * BEFORE[0] * BEFORE[1]];
+        for c in 0..3 {
+            for y in 0..planes.height.min(BEFORE[1]) {
+                let w = planes.width.min(BEFORE[0]);
+                let src = &planes.data[(c * planes.height + y) * planes.width..][..w];
+                data[(c * BEFORE[1] + y) * BEFORE[0]..][..w].copy_from_slice(src);
+            }
+        }
+        Planes {
+            width: BEFORE[0],
+            height: BEFORE[1],
+            data,
+        }
+    };
+    let before: Vec<Planes> = decoded.iter().map(letterboxed).collect();
+    let after: Vec<Planes> = decoded
+        .iter()
+        .map(|i| canvas::detector_input(i, whole(i), config.detector_long_side).0)
+        .collect();
+    let (mut t_before, mut t_after) = (Vec::new(), Vec::new());
+    for r in 0..repeats.max(1) * 2 {
+        for (set, samples) in [(&before, &mut t_before), (&after, &mut t_after)] {
+            let input = set[r % set.len()].clone();
+            let started = Instant::now();
+            detector.run(vec![input])?;
+            if r >= 2 {
+                samples.push(started.elapsed());
+            }
+        }
+    }
+    let (b, _) = summary(&t_before);
+    let (a, _) = summary(&t_after);
+    let shape = |p: &Planes| format!("{}x{}", p.width, p.height);
+    println!(
+        "ocr detection per image: {} letterbox (before) {b:.1} ms, {} at long side {} {a:.1} ms: {:.2}x",
+        shape(&before[0]),
+        shape(&after[0]),
+        config.detector_long_side,
+        a / b
+    );
+    Ok(())
+}
+
+/// Runs perception for `clients` concurrent clients; returns the wall time
+/// and every request's latency and stage timings.
+async fn drive(
+    perception: &Perception,
+    images: &Arc<Vec<Vec<u8>>>,
+    clients: usize,
+    requests: usize,
+) -> anyhow::Result<(Duration, Vec<Duration>, Vec<Vec<(&'static str, Duration)>>)> {
+    let started = Instant::now();
+    let tasks: Vec<_> = (0..clients)
+        .map(|c| {
+            let perception = perception.clone();
+            let images = images.clone();
+            tokio::spawn(async move {
+                let mut out = Vec::new();
+                for r in 0..requests {
+                    let data = images[(c * requests + r) % images.len()].clone();
+                    let sent = Instant::now();
+                    let extracted = perception.extract(ImageInput::file(data)).await?;
+                    out.push((sent.elapsed(), extracted.timings));
+                }
+                Ok::<_, anyhow::Error>(out)
+            })
+        })
+        .collect();
+    let mut latencies = Vec::new();
+    let mut timings = Vec::new();
+    for task in tasks {
+        for (latency, stages) in task.await?? {
+            latencies.push(latency);
+            timings.push(stages);
+        }
+    }
+    Ok((started.elapsed(), latencies, timings))
+}
+
+/// `humem bench perception`.
+pub async fn perception(config: Config, args: PerceptionBench) -> anyhow::Result<()> {
+    let dir = match args.images {
+        Some(dir) => dir,
+        None => {
+            let default = PathBuf::from("../shared/datasets/rtabmap-loop/sequence");
+            if !default.is_dir() {
+                bail!(
+                    "no images: pass --images DIR (the default {} does not exist)",
+                    default.display()
+                );
+            }
+            default
+        }
+    };
+    let images = Arc::new(load_images(&dir)?);
+    let decoded: Vec<image::RgbImage> = images
+        .iter()
+        .map(|b| decode(b))
+        .collect::<anyhow::Result<_>>()?;
+    let p = &config.perception;
+    println!(
+        "humem bench perception: {} images from {}, provider {:?}, {} intra-op threads per model",
+        images.len(),
+        dir.display(),
+        p.provider,
+        p.session_options().intra_threads
+    );
+
+    // Part 1: each model alone.
+    let env = runtime::environment(&runtime::library_path(
+        p.onnxruntime.as_deref(),
+        &p.models_dir,
+    ))?;
+    let options = p.session_options();
+    println!("\n1. models called directly, per batch (ms)");
+    println!(
+        "{:<18} {:>5} {:>10} {:>10} {:>12} {:>10}",
+        "model", "batch", "mean", "p95", "per input", "vs batch 1"
+    );
+    let d = &p.descriptor;
+    let mut outputs = vec![d.output.clone()];
+    if let Some(s) = p.scene.as_ref().filter(|s| s.shares_input_with(d)) {
+        outputs.push(s.output.clone());
+    }
+    let mut global = ImageModel::new(
+        "descriptor",
+        runtime::session(&env, &p.resolve(&d.model), options)?,
+        &d.input,
+        &outputs,
+        Some([d.width as usize, d.height as usize]),
+    )?;
+    let global_inputs: Vec<Planes> = decoded
+        .iter()
+        .map(|i| {
+            let resized = img::resize(i, d.width, d.height);
+            let mut data = Vec::new();
+            img::append_chw(&resized, img::Channels::Rgb, d.mean, d.std, &mut data);
+            Planes {
+                width: d.width as usize,
+                height: d.height as usize,
+                data,
+            }
+        })
+        .collect();
+    time_model(
+        "descriptor+scene",
+        &mut global,
+        &|i| global_inputs[i % global_inputs.len()].clone(),
+        args.repeats,
+    )?;
+    if let Some(o) = &p.ocr {
+        let dictionary = ocr::ctc::Dictionary::load(&p.resolve(&o.dictionary))?;
+        let sessions = vec![(
+            runtime::session(&env, &p.resolve(&o.detector), options)?,
+            runtime::session(&env, &p.resolve(&o.recognizer), options)?,
+        )];
+        let mut models = OcrModels::new(sessions, o, Arc::new(dictionary))?;
+        let det_inputs: Vec<Planes> = decoded
+            .iter()
+            .map(|i| canvas::detector_input(i, whole(i), o.detector_long_side).0)
+            .collect();
+        time_model(
+            "ocr detection",
+            &mut models.detectors[0],
+            &|i| det_inputs[i % det_inputs.len()].clone(),
+            args.repeats,
+        )?;
+        // Text lines: a strip of each image, 6:1 like a short sign.
+        let lines: Vec<ocr::LineInput> = decoded
+            .iter()
+            .map(|i| {
+                let (w, h) = (i.width() as f32, i.height() as f32);
+                let quad = [
+                    [0.2 * w, 0.45 * h],
+                    [0.8 * w, 0.45 * h],
+                    [0.8 * w, 0.55 * h],
+                    [0.2 * w, 0.55 * h],
+                ];
+                ocr::line_input(i, quad, o.line_height, o.max_line_width)
+            })
+            .collect();
+        time_model(
+            "ocr recognition",
+            &mut models.recognizers[0],
+            &|i| {
+                let l = &lines[i % lines.len()];
+                ocr::LineInput {
+                    width: l.width,
+                    data: l.data.clone(),
+                }
+            },
+            args.repeats,
+        )?;
+        compare_detection_shapes(&mut models.detectors[0], &decoded, o, args.repeats)?;
+    }
+
+    // Part 2: the pipeline under concurrent clients, unbatched then batched.
+    let top_k = config.store.scene_top_k;
+    let mut unbatched_config = p.clone();
+    unbatched_config.max_batch = 1;
+    let mut batched_config = p.clone();
+    batched_config.max_batch = args.batch.max(2);
+    let unbatched = Perception::load(&unbatched_config, top_k)?;
+    let batched = Perception::load(&batched_config, top_k)?;
+    drive(&batched, &images, 1, 2).await?;
+    drive(&unbatched, &images, 1, 2).await?;
+    println!(
+        "\n2. whole pipeline (decode, descriptor+scene, OCR), {} clients x {} images; gain = throughput vs unbatched",
+        args.clients, args.requests
+    );
+    println!(
+        "{:<30} {:>10} {:>10} {:>10} {:>8}",
+        "", "images/s", "mean ms", "p95 ms", "gain"
+    );
+    // One client alone: the latency a single SLAM client sees.
+    let (wall, latencies, _) = drive(&batched, &images, 1, args.requests).await?;
+    let (mean, p95) = summary(&latencies);
+    println!(
+        "{:<30} {:>10.1} {mean:>10.1} {p95:>10.1} {:>8}",
+        "1 client (batched run's config)",
+        latencies.len() as f64 / wall.as_secs_f64(),
+        ""
+    );
+    let mut baseline = 0.0;
+    let mut batched_timings = Vec::new();
+    for (name, perception, max_batch) in [
+        ("unbatched (max_batch 1)", &unbatched, 1),
+        ("batched", &batched, batched_config.max_batch),
+    ] {
+        let (wall, latencies, timings) =
+            drive(perception, &images, args.clients, args.requests).await?;
+        let rate = latencies.len() as f64 / wall.as_secs_f64();
+        if max_batch == 1 {
+            baseline = rate;
+        } else {
+            batched_timings = timings;
+        }
+        let (mean, p95) = summary(&latencies);
+        let label = if max_batch == 1 {
+            name.to_string()
+        } else {
+            format!("{name} (max_batch {max_batch}, {} ms)", p.max_wait_ms)
+        };
+        println!(
+            "{label:<30} {rate:>10.1} {mean:>10.1} {p95:>10.1} {:>7.2}x",
+            rate / baseline
+        );
+    }
+
+    // Part 3: stages of the batched run (queueing included).
+    println!("\n3. stages of the batched run (ms, queueing included)");
+    println!("{:<12} {:>10} {:>10}", "stage", "mean", "p95");
+    let mut stages: Vec<&'static str> = Vec::new();
+    for t in batched_timings.iter().flatten() {
+        if !stages.contains(&t.0) {
+            stages.push(t.0);
+        }
+    }
+    for stage in stages {
+        let samples: Vec<Duration> = batched_timings
+            .iter()
+            .flatten()
+            .filter(|t| t.0 == stage)
+            .map(|t| t.1)
+            .collect();
+        let (mean, p95) = summary(&samples);
+        println!("{stage:<12} {mean:>10.1} {p95:>10.1}");
+    }
+    Ok(())
+}

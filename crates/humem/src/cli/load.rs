@@ -1,0 +1,330 @@
+//! `humem load`: a load generator that drives a running server the way a
+//! fleet does, and prints what it achieved.
+//!
+//! Each simulated robot is one SLAM client: at a fixed rate it inserts a
+//! keyframe and asks a loop-closure query about it, without waiting for the
+//! previous answers (as ORB-SLAM3's asynchronous client does), so the
+//! server's latest-wins scheduling and ingest push-back are exercised for
+//! real. Keyframes carry images from a folder or synthetic features. The
+//! report gives the achieved rate, latency percentiles (HdrHistogram),
+//! superseded queries and errors by gRPC code.
+
+use std::collections::BTreeMap;
+use std::path::PathBuf;
+use std::sync::{Arc, Mutex};
+use std::time::{Duration, Instant};
+
+use anyhow::Context;
+use hdrhistogram::Histogram;
+use tonic::transport::Channel;
+
+use humem_server::proto;
+use humem_server::proto::place_recognition_client::PlaceRecognitionClient;
+
+/// Options of `humem load`.
+#[derive(Debug, Clone, clap::Args)]
+pub struct LoadArgs {
+    /// Server URL.
+    #[arg(
+        long,
+        env = "HUMEM_SERVER_URL",
+        default_value = "http://127.0.0.1:50051"
+    )]
+    pub server: String,
+    /// Simulated robots.
+    #[arg(long, default_value_t = 8)]
+    pub robots: usize,
+    /// Keyframes (and queries) per second per robot.
+    #[arg(long, default_value_t = 10.0)]
+    pub rate: f64,
+    /// How long to run, in seconds.
+    #[arg(long, default_value_t = 60.0)]
+    pub duration: f64,
+    /// Folder of JPEG/PNG images to send; default: synthetic features.
+    #[arg(long)]
+    pub images: Option<PathBuf>,
+    /// Descriptor length of the synthetic features.
+    #[arg(long, default_value_t = 256)]
+    pub dim: usize,
+    /// Queries carry the frame's content (as a relocalisation would) instead
+    /// of naming the stored keyframe, so each one runs the models too.
+    #[arg(long)]
+    pub query_content: bool,
+    /// Linux process id of the server, to report its peak memory (VmHWM).
+    #[arg(long)]
+    pub server_pid: Option<u32>,
+}
+
+/// Outcomes of one kind of call.
+struct Tally {
+    latency: Histogram<u64>,
+    ok: u64,
+    superseded: u64,
+    errors: BTreeMap<String, u64>,
+}
+
+impl Tally {
+    fn new() -> Tally {
+        Tally {
+            latency: Histogram::new_with_bounds(1, 120_000_000, 3).expect("valid bounds"),
+            ok: 0,
+            superseded: 0,
+            errors: BTreeMap::new(),
+        }
+    }
+
+    fn record(&mut self, took: Duration, outcome: Result<bool, tonic::Status>) {
+        let _ = self.latency.record(took.as_micros().max(1) as u64);
+        match outcome {
+            Ok(true) => self.ok += 1,
+            Ok(false) => self.superseded += 1,
+            Err(status) => {
+                *self
+                    .errors
+                    .entry(format!("{:?}", status.code()))
+                    .or_insert(0) += 1
+            }
+        }
+    }
+}
+
+#[derive(Clone)]
+struct Tallies {
+    insert: Arc<Mutex<Tally>>,
+    query: Arc<Mutex<Tally>>,
+}
+
+/// What a robot sends at each tick.
+enum Content {
+    Images(Arc<Vec<Vec<u8>>>),
+    Synthetic(usize),
+}
+
+impl Content {
+    fn keyframe_content(&self, robot: usize, tick: u64) -> proto::keyframe::Content {
+        match self {
+            Content::Images(images) => {
+                let i = (robot * 7919 + tick as usize) % images.len();
+                proto::keyframe::Content::Image(proto::Image {
+                    data: images[i].clone(),
+                    ..Default::default()
+                })
+            }
+            Content::Synthetic(dim) => {
+                // A slowly drifting descriptor: a robot revisits what it saw.
+                let phase = (tick % 200) as f32 * 0.03 + robot as f32;
+                let descriptor = (0..*dim).map(|i| (phase + i as f32 * 0.37).sin()).collect();
+                proto::keyframe::Content::Features(proto::Features {
+                    global_descriptor: descriptor,
+                    ..Default::default()
+                })
+            }
+        }
+    }
+}
+
+fn load_images(dir: &std::path::Path) -> anyhow::Result<Vec<Vec<u8>>> {
+    humem_eval::dataset::image_paths(dir)?
+        .iter()
+        .map(|p| std::fs::read(p).with_context(|| format!("reading {}", p.display())))
+        .collect()
+}
+
+async fn robot(
+    client: PlaceRecognitionClient<Channel>,
+    robot: usize,
+    args: Arc<LoadArgs>,
+    content: Arc<Content>,
+    tallies: Tallies,
+) {
+    let period = Duration::from_secs_f64(1.0 / args.rate.max(0.001));
+    let mut ticker = tokio::time::interval(period);
+    ticker.set_missed_tick_behavior(tokio::time::MissedTickBehavior::Skip);
+    let end = Instant::now() + Duration::from_secs_f64(args.duration);
+    let robot_id = format!("load-robot-{robot}");
+    let mut calls = Vec::new();
+    let mut tick = 0u64;
+    while Instant::now() < end {
+        ticker.tick().await;
+        let keyframe = proto::Keyframe {
+            robot_id: robot_id.clone(),
+            session_id: "load".into(),
+            keyframe_id: Some(tick),
+            frame_id: Some(tick * 3),
+            timestamp: tick as f64 * period.as_secs_f64(),
+            map_id: Some(0),
+            pose: Some(proto::Pose {
+                translation: Some(proto::Vec3 {
+                    x: tick as f64,
+                    y: 0.0,
+                    z: 0.0,
+                }),
+                rotation: Some(proto::Quaternion {
+                    w: 1.0,
+                    ..Default::default()
+                }),
+            }),
+            content: Some(content.keyframe_content(robot, tick)),
+        };
+        let query_content =
+            args.query_content
+                .then(|| match content.keyframe_content(robot, tick) {
+                    proto::keyframe::Content::Image(i) => proto::query_request::Content::Image(i),
+                    proto::keyframe::Content::Features(f) => {
+                        proto::query_request::Content::Features(f)
+                    }
+                });
+        let (mut inserter, mut querier) = (client.clone(), client.clone());
+        let tallies = tallies.clone();
+        let robot_id = robot_id.clone();
+        // Insert, then ask about the new keyframe; the next tick does not
+        // wait for either.
+        calls.push(tokio::spawn(async move {
+            let started = Instant::now();
+            let inserted = inserter
+                .insert(proto::InsertRequest {
+                    keyframe: Some(keyframe),
+                })
+                .await
+                .map(|_| true);
+            let ok = inserted.is_ok();
+            tallies
+                .insert
+                .lock()
+                .unwrap()
+                .record(started.elapsed(), inserted);
+            if !ok {
+                return;
+            }
+            let started = Instant::now();
+            let kind = if query_content.is_some() {
+                proto::QueryKind::Relocalisation
+            } else {
+                proto::QueryKind::LoopClosure
+            };
+            let answered = querier
+                .query(proto::QueryRequest {
+                    robot_id,
+                    session_id: "load".into(),
+                    keyframe_id: Some(tick),
+                    frame_id: Some(tick * 3),
+                    content: query_content,
+                    kind: kind as i32,
+                    ..Default::default()
+                })
+                .await
+                .map(|r| r.into_inner().status() == proto::QueryStatus::Answered);
+            tallies
+                .query
+                .lock()
+                .unwrap()
+                .record(started.elapsed(), answered);
+        }));
+        tick += 1;
+    }
+    for call in calls {
+        let _ = call.await;
+    }
+}
+
+fn peak_memory_kib(pid: u32) -> Option<u64> {
+    let status = std::fs::read_to_string(format!("/proc/{pid}/status")).ok()?;
+    status
+        .lines()
+        .find(|l| l.starts_with("VmHWM:"))?
+        .split_whitespace()
+        .nth(1)?
+        .parse()
+        .ok()
+}
+
+/// Runs the load and prints the report.
+pub async fn run(args: LoadArgs) -> anyhow::Result<()> {
+    let content = Arc::new(match &args.images {
+        Some(dir) => Content::Images(Arc::new(load_images(dir)?)),
+        None => Content::Synthetic(args.dim.max(1)),
+    });
+    let channel = Channel::from_shared(args.server.clone())
+        .with_context(|| format!("invalid server URL {:?}", args.server))?
+        .connect()
+        .await
+        .with_context(|| format!("connecting to {}", args.server))?;
+    let client = PlaceRecognitionClient::new(channel).max_encoding_message_size(64 << 20);
+    let tallies = Tallies {
+        insert: Arc::new(Mutex::new(Tally::new())),
+        query: Arc::new(Mutex::new(Tally::new())),
+    };
+    let args = Arc::new(args);
+    println!(
+        "humem load: {} robots x {} Hz for {} s against {} ({})",
+        args.robots,
+        args.rate,
+        args.duration,
+        args.server,
+        if args.images.is_some() {
+            "images"
+        } else {
+            "synthetic features"
+        }
+    );
+    let started = Instant::now();
+    let robots: Vec<_> = (0..args.robots)
+        .map(|r| {
+            tokio::spawn(robot(
+                client.clone(),
+                r,
+                args.clone(),
+                content.clone(),
+                tallies.clone(),
+            ))
+        })
+        .collect();
+    for r in robots {
+        r.await?;
+    }
+    let wall = started.elapsed().as_secs_f64();
+
+    println!(
+        "\n{:<8} {:>7} {:>7} {:>10} {:>7} {:>9} {:>9} {:>9} {:>9} {:>9}",
+        "call",
+        "sent",
+        "ok",
+        "superseded",
+        "errors",
+        "ok/s",
+        "p50 ms",
+        "p95 ms",
+        "p99 ms",
+        "max ms"
+    );
+    for (name, tally) in [("insert", &tallies.insert), ("query", &tallies.query)] {
+        let t = tally.lock().unwrap();
+        let errors: u64 = t.errors.values().sum();
+        let ms = |q: f64| t.latency.value_at_quantile(q) as f64 / 1000.0;
+        println!(
+            "{name:<8} {:>7} {:>7} {:>10} {:>7} {:>9.1} {:>9.1} {:>9.1} {:>9.1} {:>9.1}",
+            t.ok + t.superseded + errors,
+            t.ok,
+            t.superseded,
+            errors,
+            t.ok as f64 / wall,
+            ms(0.5),
+            ms(0.95),
+            ms(0.99),
+            t.latency.max() as f64 / 1000.0
+        );
+        for (code, n) in &t.errors {
+            println!("{:<8} error {code}: {n}", "");
+        }
+    }
+    if let Some(pid) = args.server_pid {
+        match peak_memory_kib(pid) {
+            Some(kib) => println!(
+                "\nserver peak memory (VmHWM): {:.1} MiB",
+                kib as f64 / 1024.0
+            ),
+            None => println!("\nserver peak memory: /proc/{pid}/status not readable"),
+        }
+    }
+    Ok(())
+}

@@ -1,0 +1,469 @@
+//! Perception: a camera image in, a semantic keyframe's features out.
+//!
+//! The configured ONNX models run through ONNX Runtime (`ort`), each behind
+//! a batcher so that concurrent requests share inferences: the global
+//! descriptor and scene context (one inference when one model gives both),
+//! and OCR, whose text regions become `sign` objects when no object
+//! detector is configured; and the appearance thumbnail, computed from the
+//! pixels without a model. Decoding and resizing run on tokio's blocking
+//! pool, inference on each model's own threads; the async runtime only
+//! waits. Knows nothing of gRPC.
+
+pub mod appearance;
+pub mod batcher;
+pub mod config;
+pub mod geometry;
+pub mod image;
+pub mod model;
+pub mod objects;
+pub mod ocr;
+pub mod runtime;
+pub mod yolo;
+
+use std::sync::Arc;
+use std::time::{Duration, Instant};
+
+use ::image::RgbImage;
+use humem_core::observe::SharedObserver;
+
+use batcher::{BatchError, Batcher};
+use config::{ImageModelConfig, PerceptionConfig};
+use humem_core::keyframe::{Features, ObjectObservation, SceneClass, TextObservation};
+use image::{EncodedImage, ImageError};
+use model::{ImageModel, Planes};
+use objects::Detector;
+use ocr::{Ocr, OcrModels, OcrTimes};
+use runtime::RuntimeError;
+
+/// An image as received, owning its bytes.
+#[derive(Debug, Clone)]
+pub struct ImageInput {
+    pub encoding: image::Encoding,
+    pub data: Vec<u8>,
+    pub width: u32,
+    pub height: u32,
+    pub stride: u32,
+}
+
+impl ImageInput {
+    /// A JPEG or PNG file's bytes (the format is recognised).
+    pub fn file(data: Vec<u8>) -> ImageInput {
+        ImageInput {
+            encoding: image::Encoding::Auto,
+            data,
+            width: 0,
+            height: 0,
+            stride: 0,
+        }
+    }
+
+    fn encoded(&self) -> EncodedImage<'_> {
+        EncodedImage {
+            encoding: self.encoding,
+            data: &self.data,
+            width: self.width,
+            height: self.height,
+            stride: self.stride,
+        }
+    }
+}
+
+/// Features made from an image, with the time each stage took.
+#[derive(Debug, Clone)]
+pub struct Extracted {
+    pub features: Features,
+    pub timings: Vec<(&'static str, Duration)>,
+}
+
+/// Why an image could not be turned into features.
+#[derive(Debug, Clone, thiserror::Error)]
+pub enum PerceptionError {
+    /// The client's image is unusable.
+    #[error(transparent)]
+    Image(#[from] ImageError),
+    /// A model is overloaded, stopped or failed.
+    #[error(transparent)]
+    Model(#[from] BatchError),
+    /// A model's output is not what its role needs.
+    #[error("{0}")]
+    Output(String),
+}
+
+/// One model over whole images, with its preprocessing.
+#[derive(Clone)]
+struct ImageRole {
+    batcher: Batcher<ImageModel>,
+    config: ImageModelConfig,
+}
+
+/// The loaded models.
+#[derive(Clone)]
+pub struct Perception {
+    /// Gives the descriptor, and the scene when `scene_in_global`.
+    global: ImageRole,
+    scene_in_global: bool,
+    /// A separate scene model.
+    scene: Option<ImageRole>,
+    ocr: Option<Ocr>,
+    detector: Option<Detector>,
+    text_object_class: String,
+    scene_top_k: usize,
+    /// Whether the appearance thumbnail is computed.
+    appearance: bool,
+}
+
+impl Perception {
+    /// Loads ONNX Runtime and every configured model.
+    pub fn load(config: &PerceptionConfig, scene_top_k: usize) -> Result<Perception, RuntimeError> {
+        Self::load_observed(config, scene_top_k, humem_core::observe::unobserved())
+    }
+
+    /// [`Perception::load`], with every model's queue depth and batch sizes
+    /// reported to `observer` (queues named by model role).
+    pub fn load_observed(
+        config: &PerceptionConfig,
+        scene_top_k: usize,
+        observer: SharedObserver,
+    ) -> Result<Perception, RuntimeError> {
+        let library = runtime::library_path(config.onnxruntime.as_deref(), &config.models_dir);
+        let env = runtime::environment(&library)?;
+        let options = config.session_options();
+        let batching = config.batching();
+        let workers = config.workers.max(1);
+
+        let scene_in_global = config
+            .scene
+            .as_ref()
+            .is_some_and(|s| s.shares_input_with(&config.descriptor));
+        let load_role = |name: &'static str, m: &ImageModelConfig, outputs: Vec<String>| {
+            let path = config.resolve(&m.model);
+            let models = (0..workers)
+                .map(|_| {
+                    let session = runtime::session(&env, &path, options)?;
+                    ImageModel::new(
+                        name,
+                        session,
+                        &m.input,
+                        &outputs,
+                        Some([m.width as usize, m.height as usize]),
+                    )
+                })
+                .collect::<Result<Vec<_>, RuntimeError>>()?;
+            tracing::info!(role = name, model = %path.display(), "model loaded");
+            Ok::<_, RuntimeError>(ImageRole {
+                batcher: Batcher::spawn(name, models, batching, observer.clone()),
+                config: m.clone(),
+            })
+        };
+        let mut global_outputs = vec![config.descriptor.output.clone()];
+        if scene_in_global {
+            global_outputs.extend(config.scene.as_ref().map(|s| s.output.clone()));
+        }
+        let global = load_role("descriptor", &config.descriptor, global_outputs)?;
+        let scene = match &config.scene {
+            Some(s) if !scene_in_global => Some(load_role("scene", s, vec![s.output.clone()])?),
+            _ => None,
+        };
+        let ocr = match &config.ocr {
+            None => None,
+            Some(ocr_config) => {
+                let dictionary_path = config.resolve(&ocr_config.dictionary);
+                let dictionary = ocr::ctc::Dictionary::load(&dictionary_path).map_err(|e| {
+                    RuntimeError::Model {
+                        path: dictionary_path.clone(),
+                        message: e.to_string(),
+                    }
+                })?;
+                let sessions = (0..workers)
+                    .map(|_| {
+                        Ok((
+                            runtime::session(&env, &config.resolve(&ocr_config.detector), options)?,
+                            runtime::session(
+                                &env,
+                                &config.resolve(&ocr_config.recognizer),
+                                options,
+                            )?,
+                        ))
+                    })
+                    .collect::<Result<Vec<_>, RuntimeError>>()?;
+                let models = OcrModels::new(sessions, ocr_config, Arc::new(dictionary))?;
+                tracing::info!(role = "ocr", "models loaded");
+                Some(Ocr::new(models, ocr_config, batching, &observer))
+            }
+        };
+        let detector = config
+            .detector
+            .as_ref()
+            .map(|d| Detector::load(&env, config, d, batching, &observer))
+            .transpose()?;
+        Ok(Perception {
+            global,
+            scene_in_global,
+            scene,
+            ocr,
+            detector,
+            text_object_class: config
+                .ocr
+                .as_ref()
+                .map(|o| o.text_object_class.clone())
+                .unwrap_or_default(),
+            scene_top_k,
+            appearance: config.appearance,
+        })
+    }
+
+    /// Turns an image into features: descriptor, scene distribution, and
+    /// objects with their text.
+    pub async fn extract(&self, input: ImageInput) -> Result<Extracted, PerceptionError> {
+        let mut timings = Vec::new();
+        let started = Instant::now();
+        let global_config = self.global.config.clone();
+        let scene_config = self.scene.as_ref().map(|s| s.config.clone());
+        let with_appearance = self.appearance;
+        let (image, global_input, scene_input, thumbnail) =
+            tokio::task::spawn_blocking(move || {
+                let image = image::decode(&input.encoded())?;
+                let global_input = model_input(&image, &global_config);
+                let scene_input = scene_config.map(|c| model_input(&image, &c));
+                let thumbnail = if with_appearance {
+                    appearance::thumbnail(&image)
+                } else {
+                    Vec::new()
+                };
+                Ok::<_, ImageError>((Arc::new(image), global_input, scene_input, thumbnail))
+            })
+            .await
+            .map_err(|e| PerceptionError::Output(format!("decoding task failed: {e}")))??;
+        timings.push(("decode", started.elapsed()));
+
+        let global = self.global.batcher.infer(global_input);
+        let scene = async {
+            match (&self.scene, scene_input) {
+                (Some(role), Some(input)) => role.batcher.infer(input).await.map(Some),
+                _ => Ok(None),
+            }
+        };
+        let objects = self.objects(image.clone());
+        let (global, scene, objects) = tokio::join!(global, scene, objects);
+        let global = global?;
+        let scene = scene?;
+        let (objects, object_timings) = objects?;
+        timings.push(("descriptor", global.inference + global.queued));
+
+        let mut outputs = global.output.0.into_iter();
+        let descriptor = descriptor(outputs.next())?;
+        let scene_probs = if self.scene_in_global {
+            outputs.next()
+        } else if let Some(scene) = scene {
+            timings.push(("scene", scene.inference + scene.queued));
+            scene.output.0.into_iter().next()
+        } else {
+            None
+        };
+        timings.extend(object_timings);
+        Ok(Extracted {
+            features: Features {
+                descriptor,
+                scene: scene_probs
+                    .map(|(_, p)| top_classes(&p, self.scene_top_k))
+                    .unwrap_or_default(),
+                objects,
+                appearance: thumbnail,
+            },
+            timings,
+        })
+    }
+}
+
+impl Perception {
+    /// The objects of an image with the text read on them: the detector's
+    /// objects, with OCR inside those of text-bearing classes, or, without a
+    /// detector, the text regions themselves as objects.
+    async fn objects(
+        &self,
+        image: Arc<RgbImage>,
+    ) -> Result<(Vec<ObjectObservation>, Vec<(&'static str, Duration)>), PerceptionError> {
+        let (w, h) = (image.width() as f32, image.height() as f32);
+        let normalised = |[x, y]: [f32; 2], area: f32| {
+            (
+                [(x / w).clamp(0.0, 1.0), (y / h).clamp(0.0, 1.0)],
+                (area / (w * h)).clamp(0.0, 1.0),
+            )
+        };
+        let mut timings = Vec::new();
+        let Some(detector) = &self.detector else {
+            let Some(ocr) = &self.ocr else {
+                return Ok((Vec::new(), timings));
+            };
+            let mut times = OcrTimes::default();
+            let lines = ocr.read(image.clone(), None, &mut times).await?;
+            timings.push(("ocr_det", times.detection));
+            timings.push(("ocr_rec", times.recognition));
+            let objects = lines
+                .into_iter()
+                .map(|line| {
+                    let (centroid, area) = normalised(line.rect.center(), line.rect.area());
+                    ObjectObservation {
+                        class_name: self.text_object_class.clone(),
+                        confidence: line.detection_score.clamp(0.0, 1.0),
+                        centroid,
+                        area,
+                        texts: vec![TextObservation {
+                            text: line.text,
+                            confidence: line.confidence.clamp(0.0, 1.0),
+                        }],
+                    }
+                })
+                .collect();
+            return Ok((objects, timings));
+        };
+
+        let (detected, took) = detector.detect(image.clone()).await?;
+        timings.push(("detector", took));
+        // Text is read inside every text-bearing object, all at once.
+        let reads = detected.iter().map(|object| {
+            let image = image.clone();
+            async move {
+                let mut times = OcrTimes::default();
+                let lines = match &self.ocr {
+                    Some(ocr) if detector.reads_text_on(&object.class_name) => {
+                        ocr.read(image, Some(object.rect), &mut times).await?
+                    }
+                    _ => Vec::new(),
+                };
+                Ok::<_, BatchError>((lines, times))
+            }
+        });
+        let reads = futures::future::join_all(reads).await;
+        let mut slowest = OcrTimes::default();
+        let mut objects = Vec::with_capacity(detected.len());
+        for (object, read) in detected.into_iter().zip(reads) {
+            let (lines, times) = read?;
+            slowest.detection = slowest.detection.max(times.detection);
+            slowest.recognition = slowest.recognition.max(times.recognition);
+            let (centroid, area) = normalised(object.centroid, object.area);
+            objects.push(ObjectObservation {
+                class_name: object.class_name,
+                confidence: object.confidence,
+                centroid,
+                area,
+                texts: lines
+                    .into_iter()
+                    .map(|l| TextObservation {
+                        text: l.text,
+                        confidence: l.confidence.clamp(0.0, 1.0),
+                    })
+                    .collect(),
+            });
+        }
+        if self.ocr.is_some() {
+            timings.push(("ocr_det", slowest.detection));
+            timings.push(("ocr_rec", slowest.recognition));
+        }
+        Ok((objects, timings))
+    }
+}
+
+/// The normalised input of an image model.
+fn model_input(image: &RgbImage, config: &ImageModelConfig) -> Planes {
+    let resized = image::resize(image, config.width, config.height);
+    let mut data = Vec::with_capacity(3 * (config.width * config.height) as usize);
+    image::append_chw(
+        &resized,
+        image::Channels::Rgb,
+        config.mean,
+        config.std,
+        &mut data,
+    );
+    Planes {
+        width: config.width as usize,
+        height: config.height as usize,
+        data,
+    }
+}
+
+/// The L2-normalised descriptor of a model output.
+fn descriptor(output: Option<(Vec<usize>, Vec<f32>)>) -> Result<Vec<f32>, PerceptionError> {
+    let (_, values) =
+        output.ok_or_else(|| PerceptionError::Output("descriptor model gave no output".into()))?;
+    let norm = values.iter().map(|v| v * v).sum::<f32>().sqrt();
+    if values.is_empty() || !norm.is_finite() || norm <= 0.0 {
+        return Err(PerceptionError::Output(
+            "descriptor model gave an empty, zero or non-finite descriptor".into(),
+        ));
+    }
+    Ok(values.iter().map(|v| v / norm).collect())
+}
+
+/// The `k` most probable classes of a probability vector. Outputs that are
+/// not probabilities (negative values or a sum above 1) are treated as
+/// logits and go through a softmax first.
+fn top_classes(values: &[f32], k: usize) -> Vec<SceneClass> {
+    let finite = values.iter().all(|v| v.is_finite());
+    if !finite || values.is_empty() {
+        return Vec::new();
+    }
+    let sum: f32 = values.iter().sum();
+    let probs: Vec<f32> = if values.iter().any(|&v| v < 0.0) || sum > 1.001 {
+        let max = values.iter().copied().fold(f32::MIN, f32::max);
+        let exp: Vec<f32> = values.iter().map(|v| (v - max).exp()).collect();
+        let total: f32 = exp.iter().sum();
+        exp.iter().map(|e| e / total).collect()
+    } else {
+        values.to_vec()
+    };
+    let mut classes: Vec<SceneClass> = probs
+        .iter()
+        .enumerate()
+        .filter(|(_, &p)| p > 0.0)
+        .map(|(i, &p)| SceneClass {
+            class_id: i as u32,
+            probability: p.min(1.0),
+        })
+        .collect();
+    classes.sort_by(|a, b| {
+        b.probability
+            .total_cmp(&a.probability)
+            .then(a.class_id.cmp(&b.class_id))
+    });
+    classes.truncate(k);
+    classes
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn top_classes_keeps_the_most_probable() {
+        let classes = top_classes(&[0.1, 0.6, 0.0, 0.3], 2);
+        assert_eq!(
+            classes,
+            vec![
+                SceneClass {
+                    class_id: 1,
+                    probability: 0.6
+                },
+                SceneClass {
+                    class_id: 3,
+                    probability: 0.3
+                }
+            ]
+        );
+        // Logits: softmax of (0, ln 3) = (0.25, 0.75).
+        let classes = top_classes(&[0.0, 3f32.ln(), -30.0], 5);
+        assert_eq!(classes[0].class_id, 1);
+        assert!((classes[0].probability - 0.75).abs() < 1e-5);
+        assert!(top_classes(&[f32::NAN], 3).is_empty());
+    }
+
+    #[test]
+    fn descriptors_are_normalised_and_checked() {
+        assert_eq!(
+            descriptor(Some((vec![2], vec![3.0, 4.0]))).unwrap(),
+            vec![0.6, 0.8]
+        );
+        assert!(descriptor(Some((vec![2], vec![0.0, 0.0]))).is_err());
+        assert!(descriptor(None).is_err());
+    }
+}

@@ -1,0 +1,286 @@
+//! The single writer of the store, with group commit.
+//!
+//! Changes arrive on a bounded queue (a full queue is reported at once, so
+//! callers push back instead of growing memory). The writer takes every
+//! change that is waiting, applies each to sled in order, flushes once, and
+//! only after the flush updates the in-memory index and answers the callers.
+//! One thread owns all writes, so sled and the index change in the same
+//! order and no change is computed from a stale view.
+
+use std::sync::Arc;
+
+use parking_lot::RwLock;
+use tokio::sync::{mpsc, oneshot};
+
+use super::codec::{self, decode_record, encode_key, encode_record};
+use super::{Index, Mutation, MutationOutcome, PoseUpdate, StoreError, META_DIM};
+use humem_core::keyframe::{KeyframeKey, Pose, SemanticKeyframe};
+use humem_core::observe::SharedObserver;
+
+/// Most changes committed by one flush.
+const MAX_GROUP: usize = 256;
+
+type Reply = oneshot::Sender<Result<MutationOutcome, StoreError>>;
+
+/// The trees the writer writes.
+pub(super) struct Trees {
+    pub db: sled::Db,
+    pub keyframes: sled::Tree,
+    pub meta: sled::Tree,
+}
+
+/// Sending side of the writer's queue.
+#[derive(Clone)]
+pub(super) struct WriterHandle {
+    queue: mpsc::Sender<(Mutation, Reply)>,
+    capacity: usize,
+    observer: SharedObserver,
+}
+
+/// The writer's queue, as observers see it.
+const QUEUE: &str = "store_writer";
+
+impl WriterHandle {
+    pub async fn submit(&self, mutation: Mutation) -> Result<MutationOutcome, StoreError> {
+        let (reply, answer) = oneshot::channel();
+        // Counted before sending, so the writer's decrement never comes first.
+        self.observer.depth_changed(QUEUE, 1);
+        self.queue.try_send((mutation, reply)).map_err(|e| {
+            self.observer.depth_changed(QUEUE, -1);
+            match e {
+                mpsc::error::TrySendError::Full(_) => StoreError::QueueFull {
+                    capacity: self.capacity,
+                },
+                mpsc::error::TrySendError::Closed(_) => StoreError::WriterGone,
+            }
+        })?;
+        answer.await.map_err(|_| StoreError::WriterGone)?
+    }
+}
+
+/// Starts the writer thread. It ends when every handle is dropped.
+pub(super) fn spawn(
+    trees: Trees,
+    index: Arc<RwLock<Index>>,
+    capacity: usize,
+    observer: SharedObserver,
+) -> WriterHandle {
+    let capacity = capacity.max(1);
+    let (queue, receiver) = mpsc::channel(capacity);
+    let dim = index.read().dim();
+    let writer = Writer {
+        trees,
+        index,
+        dim,
+        observer: observer.clone(),
+    };
+    std::thread::Builder::new()
+        .name("humem-store-writer".into())
+        .spawn(move || writer.run(receiver))
+        .expect("spawning the store writer thread");
+    WriterHandle {
+        queue,
+        capacity,
+        observer,
+    }
+}
+
+/// A change to the index, made visible after the flush.
+enum IndexChange {
+    Upsert(SemanticKeyframe),
+    Remove(KeyframeKey),
+    Move(KeyframeKey, Pose, Option<u64>),
+}
+
+struct Writer {
+    trees: Trees,
+    index: Arc<RwLock<Index>>,
+    /// Descriptor length of the store; 0 until the first keyframe.
+    dim: usize,
+    observer: SharedObserver,
+}
+
+impl Writer {
+    fn run(mut self, mut receiver: mpsc::Receiver<(Mutation, Reply)>) {
+        while let Some(first) = receiver.blocking_recv() {
+            let mut group = vec![first];
+            while group.len() < MAX_GROUP {
+                match receiver.try_recv() {
+                    Ok(next) => group.push(next),
+                    Err(_) => break,
+                }
+            }
+            self.observer.depth_changed(QUEUE, -(group.len() as i64));
+            self.commit(group);
+        }
+        if let Err(e) = self.trees.db.flush() {
+            tracing::error!(error = %e, "final flush of the store failed");
+        }
+    }
+
+    fn commit(&mut self, group: Vec<(Mutation, Reply)>) {
+        let mut changes = Vec::new();
+        let mut staged = Vec::with_capacity(group.len());
+        for (mutation, reply) in group {
+            let outcome = self.stage(mutation, &mut changes);
+            staged.push((reply, outcome));
+        }
+        if let Err(e) = self.trees.db.flush() {
+            tracing::error!(error = %e, "flushing the store failed");
+            for (reply, _) in staged {
+                let _ = reply.send(Err(StoreError::Flush(e.to_string())));
+            }
+            return;
+        }
+        let store_keyframes = {
+            let mut index = self.index.write();
+            for change in changes {
+                match change {
+                    IndexChange::Upsert(kf) => {
+                        index.upsert(kf);
+                    }
+                    IndexChange::Remove(key) => {
+                        index.remove(&key);
+                    }
+                    IndexChange::Move(key, pose, map) => {
+                        index.update_pose(&key, pose, map);
+                    }
+                }
+            }
+            index.len() as u64
+        };
+        for (reply, outcome) in staged {
+            let _ = reply.send(outcome.map(|mut o| {
+                o.store_keyframes = store_keyframes;
+                o
+            }));
+        }
+    }
+
+    /// Writes one change to sled (not yet flushed) and records what the
+    /// index must do once it is. A change that fails writes nothing.
+    fn stage(
+        &mut self,
+        mutation: Mutation,
+        changes: &mut Vec<IndexChange>,
+    ) -> Result<MutationOutcome, StoreError> {
+        let tree = &self.trees.keyframes;
+        let mut batch = sled::Batch::default();
+        let mut outcome = MutationOutcome::default();
+        let mut staged = Vec::new();
+        match mutation {
+            Mutation::Insert(keyframes) => {
+                let dim = if self.dim == 0 {
+                    keyframes.first().map_or(0, |k| k.features.descriptor.len())
+                } else {
+                    self.dim
+                };
+                for kf in &keyframes {
+                    let found = kf.features.descriptor.len();
+                    if found != dim {
+                        return Err(StoreError::DimensionMismatch {
+                            expected: dim,
+                            found,
+                        });
+                    }
+                }
+                if self.dim == 0 && dim != 0 {
+                    self.trees
+                        .meta
+                        .insert(META_DIM, &(dim as u32).to_be_bytes())?;
+                    self.dim = dim;
+                }
+                for kf in keyframes {
+                    let key = encode_key(&kf.key);
+                    if tree.contains_key(&key)? {
+                        outcome.replaced += 1;
+                    }
+                    batch.insert(key, encode_record(&kf));
+                    staged.push(IndexChange::Upsert(kf));
+                }
+            }
+            Mutation::Erase {
+                session,
+                keyframe_ids,
+            } => {
+                for keyframe_id in keyframe_ids {
+                    let key = KeyframeKey {
+                        robot_id: session.robot_id.clone(),
+                        session_id: session.session_id.clone(),
+                        keyframe_id,
+                    };
+                    let bytes = encode_key(&key);
+                    if tree.contains_key(&bytes)? {
+                        batch.remove(bytes);
+                        outcome.affected += 1;
+                        staged.push(IndexChange::Remove(key));
+                    }
+                }
+            }
+            Mutation::ResetSession(session) => {
+                for item in tree.scan_prefix(codec::session_prefix(&session)).keys() {
+                    let bytes = item?;
+                    let key = corrupt_key(&bytes)?;
+                    batch.remove(bytes);
+                    outcome.affected += 1;
+                    staged.push(IndexChange::Remove(key));
+                }
+            }
+            Mutation::ResetMap(map) => {
+                for item in tree.scan_prefix(codec::session_prefix(&map.session)) {
+                    let (bytes, value) = item?;
+                    let record = decode(&bytes, &value)?;
+                    if record.map_id == map.map_id {
+                        batch.remove(bytes);
+                        outcome.affected += 1;
+                        staged.push(IndexChange::Remove(record.key));
+                    }
+                }
+            }
+            Mutation::UpdatePoses { session, updates } => {
+                for PoseUpdate {
+                    keyframe_id,
+                    pose,
+                    map_id,
+                } in updates
+                {
+                    let key = KeyframeKey {
+                        robot_id: session.robot_id.clone(),
+                        session_id: session.session_id.clone(),
+                        keyframe_id,
+                    };
+                    let bytes = encode_key(&key);
+                    let Some(value) = tree.get(&bytes)? else {
+                        outcome.missing.push(keyframe_id);
+                        continue;
+                    };
+                    let mut record = decode(&bytes, &value)?;
+                    record.pose = pose;
+                    if let Some(map_id) = map_id {
+                        record.map_id = map_id;
+                    }
+                    batch.insert(bytes, encode_record(&record));
+                    outcome.affected += 1;
+                    staged.push(IndexChange::Move(key, pose, map_id));
+                }
+            }
+        }
+        tree.apply_batch(batch)?;
+        changes.extend(staged);
+        Ok(outcome)
+    }
+}
+
+fn decode(key: &[u8], value: &[u8]) -> Result<SemanticKeyframe, StoreError> {
+    decode_record(value).map_err(|source| StoreError::Corrupt {
+        key: key.to_vec(),
+        source,
+    })
+}
+
+fn corrupt_key(bytes: &[u8]) -> Result<KeyframeKey, StoreError> {
+    codec::decode_key(bytes).map_err(|source| StoreError::Corrupt {
+        key: bytes.to_vec(),
+        source,
+    })
+}
