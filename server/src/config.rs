@@ -18,12 +18,19 @@ use humem_perception::config::PerceptionConfig;
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize, Default)]
 #[serde(default, deny_unknown_fields)]
 pub struct Config {
+    /// The gRPC endpoint (`[server]`).
     pub server: ServerConfig,
+    /// The keyframe store (`[store]`).
     pub store: StoreConfig,
+    /// Defaults of query fields a client leaves unset (`[query]`).
     pub query: QueryDefaults,
+    /// HuMem-VPR scoring parameters (`[vpr]`), checked at load.
     pub vpr: VprParams,
+    /// The perception models (`[perception]`), checked at load.
     pub perception: PerceptionConfig,
+    /// The Prometheus endpoint (`[metrics]`).
     pub metrics: MetricsConfig,
+    /// Log output (`[log]`).
     pub log: LogConfig,
 }
 
@@ -132,18 +139,25 @@ impl Default for LogConfig {
     }
 }
 
+/// How log lines are written (`plain` or `json` in TOML and on the
+/// command line).
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize, clap::ValueEnum)]
 #[serde(rename_all = "lowercase")]
 pub enum LogFormat {
+    /// Human-readable text, one event a line.
     Plain,
+    /// One JSON object a line, for log collectors.
     Json,
 }
 
 /// Errors of loading the configuration.
 #[derive(Debug, thiserror::Error)]
 pub enum ConfigError {
+    /// The configuration file named does not exist.
     #[error("configuration file {0} does not exist")]
     MissingFile(PathBuf),
+    /// A layer could not be read or merged (unknown key, wrong type, bad
+    /// TOML), or a setting is out of range; the message names the setting.
     #[error("configuration: {0}")]
     Invalid(String),
 }

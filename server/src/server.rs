@@ -103,6 +103,8 @@ pub async fn serve(config: Config) -> anyhow::Result<()> {
     println!("humem listening on {local}");
 
     tonic::transport::Server::builder()
+        // Outermost, so that it records the code the client receives.
+        .layer(crate::api::rpc_metrics::RpcMetricsLayer)
         .layer(tower::util::MapResponseLayer::new(
             crate::api::transport_status::map_transport_status,
         ))

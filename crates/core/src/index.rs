@@ -22,7 +22,9 @@ use crate::vpr::{self, DescriptorMatrix, KeyframeMemory};
 /// A map: (robot, session, map id).
 #[derive(Debug, Clone, PartialEq, Eq, Hash, PartialOrd, Ord)]
 pub struct MapKey {
+    /// The robot and session the map belongs to.
     pub session: SessionKey,
+    /// Atlas map id within the session.
     pub map_id: u64,
 }
 
@@ -30,18 +32,26 @@ pub struct MapKey {
 /// of the matrix).
 #[derive(Debug, Clone)]
 pub struct RowMeta {
+    /// Identity of the keyframe.
     pub key: KeyframeKey,
+    /// Source-frame id `f_i`.
     pub frame_id: u64,
+    /// Timestamp `t_i` in seconds.
     pub timestamp: f64,
+    /// Atlas map id `m_i` within the robot's session.
     pub map_id: u64,
+    /// Camera pose in its map.
     pub pose: Pose,
+    /// Top entries of the scene-class distribution, highest first.
     pub scene: Vec<SceneClass>,
+    /// Stable objects seen in the keyframe, with their text.
     pub objects: Vec<ObjectObservation>,
     /// Row of the previous keyframe of the same track, if stored.
     prev: Option<usize>,
 }
 
 impl RowMeta {
+    /// The map this keyframe belongs to.
     pub fn map_key(&self) -> MapKey {
         MapKey {
             session: self.key.session(),
@@ -77,10 +87,12 @@ impl Index {
         }
     }
 
+    /// Number of stored keyframes.
     pub fn len(&self) -> usize {
         self.rows.len()
     }
 
+    /// Whether no keyframe is stored.
     pub fn is_empty(&self) -> bool {
         self.rows.is_empty()
     }
@@ -90,14 +102,19 @@ impl Index {
         self.matrix.dim()
     }
 
+    /// Row of the keyframe with `key`, if stored. Rows change when
+    /// keyframes are removed, so do not keep one across changes.
     pub fn row_of(&self, key: &KeyframeKey) -> Option<usize> {
         self.by_key.get(key).copied()
     }
 
+    /// Everything but the descriptor of a row. Panics if `row` is out of
+    /// range.
     pub fn meta(&self, row: usize) -> &RowMeta {
         &self.rows[row]
     }
 
+    /// Global descriptor of a row, [`Index::dim`] values.
     pub fn descriptor(&self, row: usize) -> &[f32] {
         self.matrix.row(row)
     }

@@ -13,19 +13,25 @@ use serde::{Deserialize, Serialize};
 /// are part of the key.
 #[derive(Debug, Clone, PartialEq, Eq, Hash, PartialOrd, Ord, Serialize, Deserialize)]
 pub struct KeyframeKey {
+    /// The robot that made the keyframe.
     pub robot_id: String,
+    /// The robot's SLAM session; a new one starts after a full reset.
     pub session_id: String,
+    /// Keyframe id, unique within one robot's session.
     pub keyframe_id: u64,
 }
 
 /// The stream a keyframe belongs to: one robot's one SLAM session.
 #[derive(Debug, Clone, PartialEq, Eq, Hash, PartialOrd, Ord, Serialize, Deserialize)]
 pub struct SessionKey {
+    /// The robot that runs the session.
     pub robot_id: String,
+    /// The session, unique within the robot.
     pub session_id: String,
 }
 
 impl KeyframeKey {
+    /// The session this keyframe belongs to.
     pub fn session(&self) -> SessionKey {
         SessionKey {
             robot_id: self.robot_id.clone(),
@@ -33,6 +39,7 @@ impl KeyframeKey {
         }
     }
 
+    /// Whether this keyframe belongs to `session` (same robot and session).
     pub fn in_session(&self, session: &SessionKey) -> bool {
         self.robot_id == session.robot_id && self.session_id == session.session_id
     }
@@ -60,13 +67,16 @@ impl Default for Pose {
 /// One entry of a (truncated) scene-class distribution, e.g. Places365.
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
 pub struct SceneClass {
+    /// Index of the class in the scene classifier's label set.
     pub class_id: u32,
+    /// Probability of the class, in [0, 1].
     pub probability: f32,
 }
 
 /// An OCR string read inside an object's region.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 pub struct TextObservation {
+    /// The string as read, before normalisation.
     pub text: String,
     /// Recogniser confidence `p_u` in [0, 1].
     pub confidence: f32,
@@ -96,6 +106,7 @@ pub struct Features {
     pub descriptor: Vec<f32>,
     /// Top entries of the scene-class distribution, highest first.
     pub scene: Vec<SceneClass>,
+    /// Stable objects detected in the image, with the text read on them.
     pub objects: Vec<ObjectObservation>,
     /// Appearance thumbnail ([`crate::vpr::appearance`]): the image in grey
     /// at 64×48, patch-normalised, as `i8`, row-major; empty when none.
@@ -108,6 +119,7 @@ pub struct Features {
 /// A semantic keyframe as stored.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 pub struct SemanticKeyframe {
+    /// Identity `i`: robot, session and keyframe id.
     pub key: KeyframeKey,
     /// Source-frame id `f_i` (the frame the keyframe was made from).
     pub frame_id: u64,
@@ -115,6 +127,9 @@ pub struct SemanticKeyframe {
     pub timestamp: f64,
     /// Atlas map id `m_i` within the robot's session.
     pub map_id: u64,
+    /// Camera pose `T_i` in map `m_i`.
     pub pose: Pose,
+    /// What perception extracted from the keyframe's image: descriptor,
+    /// scene `S_i`, objects `O_i` and appearance thumbnail.
     pub features: Features,
 }

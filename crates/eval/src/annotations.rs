@@ -31,12 +31,14 @@ pub type InstanceMask = ImageBuffer<Luma<u16>, Vec<u16>>;
 /// Instance id → what the object is, from `objects.json`.
 #[derive(Debug, Clone)]
 pub struct Catalog {
+    /// Each instance id's object.
     pub objects: HashMap<u16, CatalogObject>,
 }
 
 /// One object of `objects.json`.
 #[derive(Debug, Clone, PartialEq, serde::Deserialize)]
 pub struct CatalogObject {
+    /// The object's class, as a detector would name it (`shop_sign`, `pole`).
     pub class: String,
     /// The text it carries (signs, billboards), if any.
     #[serde(default)]

@@ -44,16 +44,11 @@ pub struct PerceptionBench {
     pub batch: usize,
 }
 
-/// Mean and 95th percentile.
+/// Mean and 95th percentile, in milliseconds (the harness's one latency
+/// summary, [`crate::metrics::latency`]).
 fn summary(samples: &[Duration]) -> (f64, f64) {
-    if samples.is_empty() {
-        return (0.0, 0.0);
-    }
-    let mut ms: Vec<f64> = samples.iter().map(|d| d.as_secs_f64() * 1e3).collect();
-    ms.sort_by(f64::total_cmp);
-    let mean = ms.iter().sum::<f64>() / ms.len() as f64;
-    let p95 = ms[((ms.len() as f64 * 0.95).ceil() as usize).clamp(1, ms.len()) - 1];
-    (mean, p95)
+    let stats = crate::metrics::latency(samples);
+    (stats.mean_ms, stats.p95_ms)
 }
 
 fn load_images(dir: &Path) -> anyhow::Result<Vec<Vec<u8>>> {

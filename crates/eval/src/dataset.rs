@@ -18,7 +18,9 @@ use super::truth::{self, Kind, PoseRule};
 /// A data set ready to evaluate.
 #[derive(Debug, Clone)]
 pub struct Dataset {
+    /// The folder's name.
     pub name: String,
+    /// Query/reference pairs, or one sequence searched against itself.
     pub kind: Kind,
     /// Query images (for `loop`, the sequence).
     pub queries: Vec<PathBuf>,

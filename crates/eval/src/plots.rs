@@ -289,6 +289,8 @@ pub fn precision_recall_svg(report: &EvalReport) -> anyhow::Result<String> {
     Ok(svg)
 }
 
+/// Writes every chart of `report` into `dir` as SVG and PNG; returns the
+/// PNG file names written.
 pub fn write_all(report: &EvalReport, dir: &Path) -> anyhow::Result<Vec<String>> {
     let charts = [
         ("accuracy_latency", accuracy_latency_svg(report)?),

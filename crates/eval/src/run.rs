@@ -116,9 +116,13 @@ fn parse_layers(name: &str) -> anyhow::Result<(&'static str, Layers)> {
 /// One method's numbers under one condition.
 #[derive(Debug, Clone, Serialize)]
 pub struct MethodResult {
+    /// The method's name: a layer configuration (`Full`, `SCAL`, …) or
+    /// `ORB-BoW`.
     pub method: String,
+    /// Recall@1, Recall@5 and MRR over the queries with a match.
     #[serde(flatten)]
     pub retrieval: Retrieval,
+    /// Latency over the timed queries.
     pub latency: LatencyStats,
     /// Mean milliseconds per stage over the timed queries.
     pub stages_ms: BTreeMap<String, f64>,
@@ -129,30 +133,41 @@ pub struct MethodResult {
 /// All methods under one condition.
 #[derive(Debug, Clone, Serialize)]
 pub struct ConditionResult {
+    /// `clean`, or the degradation applied to the queries (e.g. `B15`).
     pub condition: String,
+    /// One result per method, in the table's order.
     pub results: Vec<MethodResult>,
 }
 
 /// The whole run.
 #[derive(Debug, Clone, Serialize)]
 pub struct EvalReport {
+    /// The data set's folder name.
     pub dataset: String,
+    /// `pairs` or `loop`.
     pub kind: String,
+    /// Where the ground truth came from (`ground_truth.json` or the poses).
     pub truth: String,
+    /// Reference images in the database.
     pub references: usize,
+    /// Queries with a valid match scored for recall.
     pub queries: usize,
+    /// `loop` only: the frame gap candidates had to keep.
     pub min_frame_gap: Option<usize>,
     /// Queries without a valid match scored for precision.
     pub queries_without_match: usize,
     /// The operating point: threshold on the score (calibrated unless
     /// `vpr.calibration = "raw"`) and most candidates returned.
     pub threshold: f32,
+    /// The score calibration, `null` or `raw`.
     pub calibration: String,
+    /// Most candidates returned per query at the operating point.
     pub max_candidates: usize,
     /// Where the objects came from: `models` or `annotations`.
     pub objects: ObjectSource,
     /// Whether every image was sent as grey pixels.
     pub grey: bool,
+    /// One entry per condition, `clean` first.
     pub conditions: Vec<ConditionResult>,
 }
 
@@ -184,6 +199,8 @@ impl Samples {
         });
     }
 
+    /// Recall, latency, stage times and precision at `point` from the
+    /// samples, under the name `method`.
     pub fn summarise(self, method: &str, point: OperatingPoint) -> MethodResult {
         let count = self.latencies.len().max(1) as f64;
         MethodResult {

@@ -81,19 +81,28 @@ fn parse_range(text: &str) -> Result<std::ops::Range<usize>, String> {
 /// A pinhole camera, from `<sequence>_calib.json`.
 #[derive(Debug, Clone, Copy, PartialEq, serde::Deserialize)]
 pub struct Pinhole {
+    /// Image width, pixels.
     pub width: u32,
+    /// Image height, pixels.
     pub height: u32,
+    /// Horizontal focal length, pixels.
     pub fx: f64,
+    /// Vertical focal length, pixels.
     pub fy: f64,
+    /// Principal point's x, pixels.
     pub cx: f64,
+    /// Principal point's y, pixels.
     pub cy: f64,
 }
 
 /// A sign with distinctive text and where it stands.
 #[derive(Debug, Clone, PartialEq)]
 pub struct Sign {
+    /// Its instance id in `objects.json` and the masks.
     pub id: u16,
+    /// The text it carries, as the catalog writes it.
     pub text: String,
+    /// Its centre in the world frame, metres.
     pub position: Vector3<f64>,
 }
 
@@ -171,14 +180,17 @@ pub fn approximate_occurrence(sign: &str, lines: &[String]) -> bool {
 /// Text recall and OCR time on one folder.
 #[derive(Debug, Clone, Serialize)]
 pub struct FolderResult {
+    /// The folder as given, or `all` for the total.
     pub dataset: String,
+    /// Frames read.
     pub frames: usize,
     /// Frames with at least one distinctive sign in view.
     pub frames_with_sign: usize,
     /// Those where OCR read at least one of the signs in view.
     pub frames_read: usize,
-    /// Sign sightings (sign, frame) and those read.
+    /// Sign sightings: (sign, frame) pairs with the sign in view.
     pub sightings: usize,
+    /// Those sightings where OCR read the sign.
     pub sightings_read: usize,
     /// Mean OCR time per image (detection and recognition), ms.
     pub ocr_ms: f64,

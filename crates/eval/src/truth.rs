@@ -27,7 +27,9 @@ pub enum TruthError {
     /// The file could not be read.
     #[error("reading {}: {source}", .path.display())]
     Io {
+        /// The file.
         path: PathBuf,
+        /// The read error.
         #[source]
         source: std::io::Error,
     },
@@ -35,13 +37,20 @@ pub enum TruthError {
     /// of `serde_json` carries the line and column).
     #[error("{}: not a ground-truth file ({{\"kind\": \"pairs\"|\"loop\", \"matches\": {{...}}}}): {source}", .path.display())]
     Json {
+        /// The file.
         path: PathBuf,
+        /// The parser's error.
         #[source]
         source: serde_json::Error,
     },
     /// The ground-truth file parsed but its content is not valid.
     #[error("{}: {message}", .path.display())]
-    Invalid { path: PathBuf, message: String },
+    Invalid {
+        /// The file.
+        path: PathBuf,
+        /// What is wrong with it.
+        message: String,
+    },
     /// A line of a pose file could not be used.
     #[error("{}line {line}: {message}", origin(.path))]
     Pose {
@@ -49,6 +58,7 @@ pub enum TruthError {
         path: Option<PathBuf>,
         /// 1-based line number.
         line: usize,
+        /// What is wrong with the line.
         message: String,
     },
 }
@@ -87,6 +97,7 @@ pub enum Kind {
 /// The valid matches of each query of a data set.
 #[derive(Debug, Clone, PartialEq)]
 pub struct GroundTruth {
+    /// Query/reference pairs, or one sequence searched against itself.
     pub kind: Kind,
     /// `loop` only: candidates must be at least this many frames earlier.
     pub min_frame_gap: Option<usize>,
@@ -151,7 +162,9 @@ pub fn load_ground_truth(path: &Path) -> Result<GroundTruth, TruthError> {
 /// typically camera-to-world).
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct Pose {
+    /// Position, in the pose file's units (metres for TUM and KITTI).
     pub t: Vector3<f64>,
+    /// Orientation, a unit quaternion.
     pub r: UnitQuaternion<f64>,
 }
 

@@ -3,6 +3,8 @@
 //!
 //! - [`orb`]: ORB features as ORB-SLAM3 extracts them (1000 per image,
 //!   8-level pyramid, per-cell FAST thresholds, quadtree spreading, rBRIEF).
+//! - `pattern` (private): the 256 rBRIEF test pairs of OpenCV's ORB, which
+//!   [`orb`] samples for each descriptor bit.
 //! - [`vocabulary`]: DBoW2-style hierarchical k-majority vocabulary, idf
 //!   weights, L1-normalised tf-idf vectors and the L1 score.
 //! - [`OrbBowIndex`]: a vocabulary trained on the reference images and an

@@ -19,7 +19,9 @@ use humem_core::observe::SharedObserver;
 
 /// A model that runs on batches.
 pub trait BatchModel: Send + 'static {
+    /// What one job hands the model (one image, one text line, …).
     type Input: Send + 'static;
+    /// What the model gives back for one input.
     type Output: Send + 'static;
 
     /// Runs one batch; returns one output per input, in order.
@@ -40,6 +42,7 @@ pub struct BatchConfig {
 /// An output with how it was made.
 #[derive(Debug)]
 pub struct Inferred<O> {
+    /// The model's output for this job's input.
     pub output: O,
     /// Inputs in the inference that made it.
     pub batch_size: usize,
@@ -52,10 +55,21 @@ pub struct Inferred<O> {
 /// Why a job got no output.
 #[derive(Debug, Clone, thiserror::Error)]
 pub enum BatchError {
+    /// The model's queue is full; the job was not queued.
     #[error("model {model} is busy ({queue} jobs waiting); retry shortly")]
-    Busy { model: &'static str, queue: usize },
+    Busy {
+        /// The batcher's name (the model's role).
+        model: &'static str,
+        /// The queue's capacity, in jobs.
+        queue: usize,
+    },
+    /// The model's workers have gone, so the job got no answer.
     #[error("model {model} has stopped")]
-    Stopped { model: &'static str },
+    Stopped {
+        /// The batcher's name (the model's role).
+        model: &'static str,
+    },
+    /// The inference failed.
     #[error(transparent)]
     Runtime(#[from] RuntimeError),
 }

@@ -114,6 +114,8 @@ impl PerceptionConfig {
         }
     }
 
+    /// How every model's requests are batched: `max_batch` resolved for the
+    /// provider, `max_wait_ms` as a duration, a queue of at least 1.
     pub fn batching(&self) -> BatchConfig {
         BatchConfig {
             max_batch: match (self.max_batch, self.provider) {
@@ -126,6 +128,8 @@ impl PerceptionConfig {
         }
     }
 
+    /// The options of every model's sessions: the provider, and
+    /// `intra_threads` with 0 resolved to half the machine's cores.
     pub fn session_options(&self) -> SessionOptions {
         SessionOptions {
             provider: self.provider,
@@ -168,10 +172,14 @@ pub struct ImageModelConfig {
     pub model: PathBuf,
     /// Input tensor name; the input is `[N, 3, height, width]` float RGB.
     pub input: String,
+    /// Input width in pixels; the image is resized to it without keeping
+    /// its aspect ratio.
     pub width: u32,
+    /// Input height in pixels.
     pub height: u32,
     /// Per-channel normalisation `(v / 255 − mean) / std`.
     pub mean: [f32; 3],
+    /// Per-channel divisor of that normalisation; must be positive.
     pub std: [f32; 3],
     /// Output tensor name: `[N, D]` descriptor, or `[N, C]` class
     /// probabilities for the scene role.
@@ -217,11 +225,15 @@ pub enum YoloLayout {
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
 pub struct DetectorConfig {
+    /// ONNX file.
     pub model: PathBuf,
+    /// Input tensor name (default `images`); the input is
+    /// `[N, 3, size, size]` letterboxed RGB in [0, 1].
     #[serde(default = "default_image_input")]
     pub input: String,
     /// Square input side the export was made for (e.g. 640).
     pub size: u32,
+    /// Which output layout the export has.
     pub layout: YoloLayout,
     /// Class names in the model's order.
     pub classes: Vec<String>,
@@ -229,15 +241,21 @@ pub struct DetectorConfig {
     /// `vpr.class_weights`. Empty: keep all.
     #[serde(default)]
     pub keep: Vec<String>,
-    /// Detection output and, for segment exports, the prototype masks.
+    /// Detection output tensor name (default `output0`).
     #[serde(default = "default_detections_output")]
     pub output: String,
+    /// Prototype masks output tensor name, for segment exports; none for
+    /// detect exports.
     #[serde(default)]
     pub masks_output: Option<String>,
+    /// Detections scoring at or below this are dropped (default 0.25).
     #[serde(default = "default_confidence")]
     pub confidence: f32,
+    /// NMS threshold: a box whose IoU with a better box of its class
+    /// exceeds this is dropped (default 0.45; `anchors` layout only).
     #[serde(default = "default_iou")]
     pub iou: f32,
+    /// Most detections kept per image (default 64).
     #[serde(default = "default_max_objects")]
     pub max_objects: usize,
     /// Classes on which text is read (e.g. billboards, signs); empty: all.
@@ -280,7 +298,9 @@ impl DetectorConfig {
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(default, deny_unknown_fields)]
 pub struct OcrConfig {
+    /// ONNX file of the text detector (DBNet).
     pub detector: PathBuf,
+    /// ONNX file of the line recogniser (CRNN with CTC).
     pub recognizer: PathBuf,
     /// Character list index-aligned with the recogniser's classes.
     pub dictionary: PathBuf,
@@ -290,8 +310,9 @@ pub struct OcrConfig {
     /// The camera's own width (512 for 512x288) reads what the pixels hold
     /// at the least cost; a larger value finds smaller text, slower.
     pub detector_long_side: u32,
-    /// Recogniser input height and widest line, in pixels.
+    /// Recogniser input height, in pixels (at least 8).
     pub line_height: u32,
+    /// Widest recogniser input, in pixels: longer lines are squeezed to it.
     pub max_line_width: u32,
     /// Strings read with less confidence are dropped.
     pub min_confidence: f32,

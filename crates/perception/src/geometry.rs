@@ -11,9 +11,13 @@
 /// An axis-aligned rectangle in pixel coordinates, `x1`/`y1` exclusive.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct Rect {
+    /// Left edge, inclusive.
     pub x0: f32,
+    /// Top edge, inclusive.
     pub y0: f32,
+    /// Right edge, exclusive.
     pub x1: f32,
+    /// Bottom edge, exclusive.
     pub y1: f32,
 }
 

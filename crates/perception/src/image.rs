@@ -15,8 +15,9 @@
 use fast_image_resize as fir;
 use image::{DynamicImage, RgbImage};
 
-/// Smallest and largest accepted side, in pixels.
+/// Smallest accepted side, in pixels.
 pub const MIN_SIDE: u32 = 16;
+/// Largest accepted side, in pixels.
 pub const MAX_SIDE: u32 = 8192;
 
 /// How the bytes of an image are encoded.
@@ -24,10 +25,15 @@ pub const MAX_SIDE: u32 = 8192;
 pub enum Encoding {
     /// JPEG or PNG, recognised from the bytes.
     Auto,
+    /// A JPEG file.
     Jpeg,
+    /// A PNG file.
     Png,
+    /// Raw 8-bit grey, one byte per pixel.
     Gray8,
+    /// Raw 8-bit RGB, three bytes per pixel in R, G, B order.
     Rgb8,
+    /// Raw 8-bit BGR, three bytes per pixel in B, G, R order (OpenCV's).
     Bgr8,
 }
 
@@ -45,10 +51,13 @@ impl Encoding {
 /// An image as received.
 #[derive(Debug, Clone, Copy)]
 pub struct EncodedImage<'a> {
+    /// How `data` is encoded.
     pub encoding: Encoding,
+    /// The file's bytes, or the raw pixel rows.
     pub data: &'a [u8],
-    /// Raw encodings only.
+    /// Width in pixels; raw encodings only.
     pub width: u32,
+    /// Height in pixels; raw encodings only.
     pub height: u32,
     /// Raw encodings only; 0 = tightly packed.
     pub stride: u32,
@@ -57,26 +66,45 @@ pub struct EncodedImage<'a> {
 /// Why an image cannot be used. Messages name the request field.
 #[derive(Debug, Clone, PartialEq, thiserror::Error)]
 pub enum ImageError {
+    /// No bytes were sent.
     #[error("data: empty")]
     Empty,
+    /// The bytes are neither JPEG nor PNG and no raw encoding was given.
     #[error("data: neither JPEG nor PNG; set encoding for raw pixels")]
     Unrecognised,
+    /// The decoder rejected the file; the decoder's message.
     #[error("data: does not decode: {0}")]
     Decode(String),
+    /// A side is outside [`MIN_SIDE`]..=[`MAX_SIDE`] pixels.
     #[error("width, height: {width}x{height} is outside {MIN_SIDE}..={MAX_SIDE} pixels per side")]
-    Size { width: u32, height: u32 },
+    Size {
+        /// Width in pixels.
+        width: u32,
+        /// Height in pixels.
+        height: u32,
+    },
+    /// A raw image's row stride is shorter than one row of pixels.
     #[error("stride: {stride} is less than width x {channels} = {row} bytes")]
     Stride {
+        /// The stride given, in bytes.
         stride: usize,
+        /// Bytes per pixel of the encoding.
         channels: usize,
+        /// Bytes in one row of pixels (width × channels).
         row: usize,
     },
+    /// A raw image has fewer bytes than its size and stride need.
     #[error("data: {found} bytes, a {width}x{height} image with stride {stride} needs {needed}")]
     Short {
+        /// Bytes received.
         found: usize,
+        /// Bytes needed: every row but the last at the stride, plus one row.
         needed: usize,
+        /// Width in pixels.
         width: u32,
+        /// Height in pixels.
         height: u32,
+        /// Row stride in bytes.
         stride: usize,
     },
 }
@@ -267,6 +295,7 @@ pub fn resize(image: &RgbImage, width: u32, height: u32) -> RgbImage {
 /// Channel order of a model's input planes.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub enum Channels {
+    /// Red, green, blue.
     Rgb,
     /// PaddleOCR's models were trained on OpenCV's BGR images.
     Bgr,

@@ -8,6 +8,19 @@
 //! pixels without a model. Decoding and resizing run on tokio's blocking
 //! pool, inference on each model's own threads; the async runtime only
 //! waits. Knows nothing of gRPC.
+//!
+//! - [`config`]: the `[perception]` section, which models run and how;
+//! - [`runtime`]: ONNX Runtime, loaded once, and sessions on it;
+//! - [`batcher`]: concurrent requests for one model gathered into batches;
+//! - [`model`]: one ONNX model over images, as a batch model;
+//! - [`image`]: decoding JPEG, PNG and raw frames to RGB, resizing and
+//!   normalising to a model's input;
+//! - [`appearance`]: the appearance thumbnail, computed without a model;
+//! - [`geometry`]: the axis-aligned rectangle the detectors share;
+//! - [`objects`]: the object detector role (a YOLO export), letterboxing
+//!   and objects in image pixels;
+//! - [`yolo`]: decoding YOLO outputs, NMS and instance masks;
+//! - [`ocr`]: PP-OCRv5 text detection and recognition.
 
 pub mod appearance;
 pub mod batcher;
@@ -38,10 +51,15 @@ use runtime::RuntimeError;
 /// An image as received, owning its bytes.
 #[derive(Debug, Clone)]
 pub struct ImageInput {
+    /// How `data` is encoded.
     pub encoding: image::Encoding,
+    /// The file's bytes, or the raw pixel rows.
     pub data: Vec<u8>,
+    /// Width in pixels; raw encodings only.
     pub width: u32,
+    /// Height in pixels; raw encodings only.
     pub height: u32,
+    /// Bytes per row; raw encodings only, 0 = tightly packed.
     pub stride: u32,
 }
 
@@ -71,7 +89,11 @@ impl ImageInput {
 /// Features made from an image, with the time each stage took.
 #[derive(Debug, Clone)]
 pub struct Extracted {
+    /// The keyframe's features.
     pub features: Features,
+    /// `(stage, time)` in the order measured: `decode`, `descriptor`,
+    /// `scene`, `detector`, `ocr_det`, `ocr_rec` (stages that did not run
+    /// on their own are left out).
     pub timings: Vec<(&'static str, Duration)>,
 }
 

@@ -25,13 +25,18 @@ pub struct Outputs(pub Vec<(Vec<usize>, Vec<f32>)>);
 /// One normalised image: `3 × height × width` planar values.
 #[derive(Debug, Clone, PartialEq)]
 pub struct Planes {
+    /// Width in pixels.
     pub width: usize,
+    /// Height in pixels.
     pub height: usize,
+    /// The three colour planes one after the other, in the model's channel
+    /// order, each row-major.
     pub data: Vec<f32>,
 }
 
 /// A session over `[N, 3, height, width]` float inputs.
 pub struct ImageModel {
+    /// The model's role, as named in errors (`descriptor`, `detector`, …).
     pub name: String,
     session: Session,
     input: String,

@@ -29,9 +29,13 @@ const PAD: u8 = 114;
 /// An object found in an image, in the image's pixels.
 #[derive(Debug, Clone, PartialEq)]
 pub struct DetectedObject {
+    /// The class, one of the configured class names.
     pub class_name: String,
+    /// The detector's score, in [0, 1].
     pub confidence: f32,
+    /// The box, clamped to the image.
     pub rect: Rect,
+    /// `[x, y]` centre of the mask, or of the box without masks, in pixels.
     pub centroid: [f32; 2],
     /// Pixels² covered (mask or box).
     pub area: f32,
@@ -40,11 +44,15 @@ pub struct DetectedObject {
 /// Where an image sits in the letterboxed input.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct Letterbox {
+    /// Input pixels per image pixel (the same on both axes).
     pub scale: f32,
+    /// `[x, y]` padding before the image in the input, in input pixels.
     pub pad: [f32; 2],
 }
 
 impl Letterbox {
+    /// Where a `width` × `height` image sits in a `size` × `size` input:
+    /// scaled to fit, aspect kept, centred (padding rounded down).
     pub fn new(width: u32, height: u32, size: u32) -> Letterbox {
         let scale = (size as f32 / width as f32).min(size as f32 / height as f32);
         let (w, h) = (width as f32 * scale, height as f32 * scale);

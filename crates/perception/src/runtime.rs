@@ -19,25 +19,49 @@ use serde::{Deserialize, Serialize};
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize, Default)]
 #[serde(rename_all = "lowercase")]
 pub enum ExecutionProvider {
+    /// The CPU, always available.
     #[default]
     Cpu,
+    /// An NVIDIA GPU through CUDA (cargo feature `cuda`).
     Cuda,
+    /// An NVIDIA GPU through TensorRT (cargo feature `tensorrt`).
     Tensorrt,
 }
 
 /// Errors of loading ONNX Runtime or a model.
 #[derive(Debug, Clone, thiserror::Error)]
 pub enum RuntimeError {
+    /// The ONNX Runtime shared library is not at the path resolved.
     #[error("ONNX Runtime library not found at {0}; run scripts/setup-models.sh or set perception.onnxruntime / ORT_DYLIB_PATH")]
     LibraryMissing(PathBuf),
+    /// The library exists but could not be loaded or initialised.
     #[error("loading ONNX Runtime from {path}: {message}")]
-    Library { path: PathBuf, message: String },
+    Library {
+        /// The library's path.
+        path: PathBuf,
+        /// ONNX Runtime's message.
+        message: String,
+    },
+    /// A configured model file does not exist.
     #[error("model file {0} does not exist; run scripts/setup-models.sh or fix the perception configuration")]
     ModelMissing(PathBuf),
+    /// A model file (or the OCR dictionary) exists but could not be loaded.
     #[error("loading model {path}: {message}")]
-    Model { path: PathBuf, message: String },
+    Model {
+        /// The file's path.
+        path: PathBuf,
+        /// Why it could not be loaded.
+        message: String,
+    },
+    /// A loaded model lacks a configured input or output, or an inference
+    /// failed or gave outputs of an unexpected shape.
     #[error("model {model}: {message}")]
-    Run { model: String, message: String },
+    Run {
+        /// Which model: its role (`descriptor`, `ocr recognizer`, …).
+        model: String,
+        /// What went wrong.
+        message: String,
+    },
 }
 
 static ENVIRONMENT: OnceLock<Result<ort::environment::Environment, RuntimeError>> = OnceLock::new();
@@ -90,6 +114,7 @@ pub fn environment(library: &Path) -> Result<ort::environment::Environment, Runt
 /// Settings of the sessions of one model.
 #[derive(Debug, Clone, Copy)]
 pub struct SessionOptions {
+    /// Where inference runs; falls back to the CPU when unavailable.
     pub provider: ExecutionProvider,
     /// Threads ONNX Runtime may use inside one inference; 0 = its default.
     pub intra_threads: usize,

@@ -37,7 +37,9 @@ pub enum Layout {
 /// One detected object.
 #[derive(Debug, Clone, PartialEq)]
 pub struct Detection {
+    /// Index of the best class in the model's class list.
     pub class_id: usize,
+    /// That class's score.
     pub score: f32,
     /// Box in model-input pixels.
     pub rect: Rect,
@@ -48,12 +50,22 @@ pub struct Detection {
 /// Errors of reading a YOLO output tensor.
 #[derive(Debug, Clone, PartialEq, Eq, thiserror::Error)]
 pub enum YoloError {
+    /// The shape does not fit the layout, class count and mask count.
     #[error("YOLO output shape {got:?} does not match the expected {expected}; check the layout, class count and mask count")]
-    Shape { got: Vec<usize>, expected: String },
+    Shape {
+        /// The shape given.
+        got: Vec<usize>,
+        /// The shape expected, written out.
+        expected: String,
+    },
+    /// The number of values is not the product of the shape.
     #[error("YOLO output has {got} values but its shape {shape:?} needs {expected}")]
     Length {
+        /// The shape given.
         shape: Vec<usize>,
+        /// Values the shape needs.
         expected: usize,
+        /// Values given.
         got: usize,
     },
 }

@@ -19,12 +19,20 @@ pub const FORMAT_VERSION: u8 = 2;
 /// Errors of decoding stored bytes.
 #[derive(Debug, thiserror::Error)]
 pub enum CodecError {
+    /// The record's version byte is neither [`FORMAT_VERSION`] nor an
+    /// older version this build still reads.
     #[error("stored record has format version {found}, this build reads version {FORMAT_VERSION}")]
-    UnsupportedVersion { found: u8 },
+    UnsupportedVersion {
+        /// The version byte the record starts with.
+        found: u8,
+    },
+    /// The record has no bytes, not even a version byte.
     #[error("stored record is empty")]
     Empty,
+    /// The key is not `robot \0 session \0 keyframe_id`; says what is wrong.
     #[error("stored key is malformed: {0}")]
     BadKey(&'static str),
+    /// The record body is not a valid postcard encoding of a keyframe.
     #[error("stored record does not decode: {0}")]
     Postcard(#[from] postcard::Error),
 }

@@ -7,6 +7,13 @@
 //! arrived together (group commit), and only then makes them visible in the
 //! index and acknowledges them. So an acknowledged change survives a crash,
 //! and a query never sees a keyframe that could still be lost.
+//!
+//! - the crate root: [`Store`] (open, apply a change, read the index), the
+//!   [`Mutation`]s it applies and [`StoreError`];
+//! - [`codec`]: the on-disk format, sled keys and versioned postcard
+//!   records;
+//! - `writer`: the single writer thread, its bounded queue and group
+//!   commit.
 
 pub mod codec;
 mod writer;
@@ -23,28 +30,54 @@ use humem_core::keyframe::{KeyframeKey, Pose, SemanticKeyframe, SessionKey};
 /// Errors of the store.
 #[derive(Debug, thiserror::Error)]
 pub enum StoreError {
+    /// A descriptor's length differs from the store's, at open or insert.
     #[error("descriptor has {found} values but this store holds {expected}-value descriptors")]
-    DimensionMismatch { expected: usize, found: usize },
+    DimensionMismatch {
+        /// Descriptor length the store holds.
+        expected: usize,
+        /// Descriptor length given.
+        found: usize,
+    },
+    /// sled could not open the data directory.
     #[error("data directory {path}: {source}")]
     Open {
+        /// The data directory, as given.
         path: String,
+        /// What sled reported.
         #[source]
         source: sled::Error,
     },
+    /// The store was written by a newer build (or its version is garbled).
     #[error("store format version {found} is not supported (this build reads {supported})")]
-    UnsupportedFormat { found: u32, supported: u32 },
+    UnsupportedFormat {
+        /// Format version recorded in the store.
+        found: u32,
+        /// Newest format version this build reads and writes.
+        supported: u32,
+    },
+    /// Any other sled error, while reading or writing.
     #[error("sled: {0}")]
     Sled(#[from] sled::Error),
+    /// A stored key or record does not decode.
     #[error("corrupt record {key:?}: {source}")]
     Corrupt {
+        /// The sled key of the record, as stored.
         key: Vec<u8>,
+        /// Why it does not decode.
         #[source]
         source: codec::CodecError,
     },
+    /// The writer thread has ended, so no change can be applied.
     #[error("the store writer has stopped")]
     WriterGone,
+    /// The writer's queue is full; the change was not queued.
     #[error("the write queue is full ({capacity} pending changes); retry shortly")]
-    QueueFull { capacity: usize },
+    QueueFull {
+        /// Most changes the queue holds.
+        capacity: usize,
+    },
+    /// The flush after a group of changes failed: none of the group is
+    /// acknowledged or visible in the index. Holds sled's message.
     #[error("flushing to disk failed: {0}")]
     Flush(String),
 }
@@ -56,7 +89,9 @@ pub enum Mutation {
     Insert(Vec<SemanticKeyframe>),
     /// Remove keyframes of one session.
     Erase {
+        /// The session the keyframes belong to.
         session: SessionKey,
+        /// Keyframe ids within the session; ids not stored are skipped.
         keyframe_ids: Vec<u64>,
     },
     /// Remove every keyframe of one map.
@@ -65,7 +100,9 @@ pub enum Mutation {
     ResetSession(SessionKey),
     /// Move keyframes of one session to new poses (and maybe maps).
     UpdatePoses {
+        /// The session the keyframes belong to.
         session: SessionKey,
+        /// One corrected pose per keyframe.
         updates: Vec<PoseUpdate>,
     },
 }
@@ -73,7 +110,9 @@ pub enum Mutation {
 /// A corrected pose for one keyframe of a session.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct PoseUpdate {
+    /// Keyframe id, unique within the session.
     pub keyframe_id: u64,
+    /// The corrected camera pose in its map.
     pub pose: Pose,
     /// The map the keyframe now belongs to, if a merge moved it.
     pub map_id: Option<u64>,

@@ -6,12 +6,14 @@ use tonic::Status;
 use std::time::Duration;
 
 use crate::pipeline::query::{Candidate, QueryError, QueryOutcome};
+use crate::pipeline::PipelineError;
 use crate::proto;
 use humem_core::keyframe::{Features, Pose};
 use humem_perception::batcher::BatchError;
 use humem_perception::PerceptionError;
 use humem_store::StoreError;
 
+/// A pose as its message: translation and `(w, x, y, z)` quaternion.
 pub fn pose(p: &Pose) -> proto::Pose {
     let [x, y, z] = p.translation;
     let [w, qx, qy, qz] = p.rotation;
@@ -30,6 +32,8 @@ fn index(i: usize) -> u32 {
     u32::try_from(i).unwrap_or(u32::MAX)
 }
 
+/// A candidate as its message, with its evidence spelled out (object
+/// indices saturate at `u32::MAX`).
 pub fn candidate(c: &Candidate) -> proto::Candidate {
     proto::Candidate {
         robot_id: c.key.robot_id.clone(),
@@ -106,6 +110,7 @@ pub fn candidate(c: &Candidate) -> proto::Candidate {
     }
 }
 
+/// Per-stage times as messages, in seconds.
 pub fn timings(timings: &[(&'static str, Duration)]) -> Vec<proto::StageTiming> {
     timings
         .iter()
@@ -116,6 +121,7 @@ pub fn timings(timings: &[(&'static str, Duration)]) -> Vec<proto::StageTiming> 
         .collect()
 }
 
+/// Features as their message, e.g. those computed from a sent image.
 pub fn features(f: &Features) -> proto::Features {
     proto::Features {
         global_descriptor: f.descriptor.clone(),
@@ -170,6 +176,8 @@ pub fn perception_status(field: &str, e: PerceptionError) -> Status {
     }
 }
 
+/// The response of an answered query (superseded queries are answered
+/// elsewhere).
 pub fn query_response(outcome: &QueryOutcome) -> proto::QueryResponse {
     proto::QueryResponse {
         candidates: outcome.candidates.iter().map(candidate).collect(),
@@ -201,6 +209,19 @@ pub fn store_status(e: StoreError) -> Status {
                 tracing::error!(error = %e, "store failure");
                 Status::internal(e.to_string())
             }
+        }
+    }
+}
+
+impl From<PipelineError> for Status {
+    fn from(e: PipelineError) -> Status {
+        match e {
+            PipelineError::Invalid(field) => field.into(),
+            PipelineError::NoPerception { .. } => Status::failed_precondition(e.to_string()),
+            PipelineError::Perception { field, source } => perception_status(&field, source),
+            PipelineError::Store(e) => store_status(e),
+            PipelineError::Query(e) => e.into(),
+            PipelineError::Task(_) => Status::internal(e.to_string()),
         }
     }
 }

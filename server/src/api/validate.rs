@@ -9,10 +9,12 @@
 
 use std::collections::HashSet;
 
+pub use crate::pipeline::request::{
+    InvalidField, Observation, PendingKeyframe, QueryKind, QuerySpec,
+};
 use crate::proto;
 use humem_core::keyframe::{
-    Features, KeyframeKey, ObjectObservation, Pose, SceneClass, SemanticKeyframe, SessionKey,
-    TextObservation,
+    Features, KeyframeKey, ObjectObservation, Pose, SceneClass, SessionKey, TextObservation,
 };
 use humem_core::vpr::{Layers, MapRef, Scope};
 use humem_perception::ImageInput;
@@ -28,26 +30,20 @@ pub const MAX_OBJECTS: usize = 256;
 pub const MAX_TEXTS: usize = 32;
 /// Longest OCR string accepted, in characters.
 pub const MAX_TEXT_CHARS: usize = 256;
-/// Longest class name, robot or session id, in bytes.
+/// Longest class name, in bytes.
 pub const MAX_CLASS_BYTES: usize = 64;
+/// Longest robot or session id, in bytes.
 pub const MAX_ID_BYTES: usize = 128;
 /// Most keyframes in one InsertBatch.
 pub const MAX_BATCH: usize = 1024;
 /// Most candidates a query may ask for.
 pub const MAX_TOP_N: usize = 100;
-/// Most ids in one Erase, UpdatePoses or predecessor list, and most entries
-/// in a listed scope.
+/// Most ids in one Erase, and most updates in one UpdatePoses.
 pub const MAX_IDS: usize = 100_000;
+/// Most predecessor keyframe ids in one query.
 pub const MAX_PREDECESSORS: usize = 16;
+/// Most robot ids and maps, together, in a listed scope.
 pub const MAX_LISTED: usize = 4096;
-
-/// A request field that is wrong, and why.
-#[derive(Debug, Clone, PartialEq, thiserror::Error)]
-#[error("{field}: {reason}")]
-pub struct InvalidField {
-    pub field: String,
-    pub reason: String,
-}
 
 fn invalid(field: impl Into<String>, reason: impl Into<String>) -> InvalidField {
     InvalidField {
@@ -71,24 +67,7 @@ pub struct Limits {
     pub top_n: usize,
 }
 
-/// A validated query.
-#[derive(Debug, Clone)]
-pub struct QuerySpec {
-    pub session: SessionKey,
-    pub map_id: Option<u64>,
-    pub frame_id: Option<u64>,
-    pub keyframe_id: Option<u64>,
-    /// What the query shows, if sent (else the stored keyframe's features).
-    pub observation: Option<Observation>,
-    pub predecessor_ids: Vec<u64>,
-    pub scope: Scope,
-    pub min_frame_gap: u64,
-    pub top_n: usize,
-    pub threshold: f32,
-    pub layers: Layers,
-    pub kind: proto::QueryKind,
-}
-
+/// A robot id: required (non-empty), at most [`MAX_ID_BYTES`] bytes, no NUL.
 pub fn robot_id(field: &str, id: &str) -> Result<String> {
     if id.is_empty() {
         return Err(invalid(field, "required"));
@@ -319,41 +298,6 @@ fn object(field: &str, o: &proto::ObjectObservation) -> Result<ObjectObservation
         area: unit_interval(&format!("{field}.area"), o.area)?,
         texts,
     })
-}
-
-/// What a keyframe or query shows, as sent.
-#[derive(Debug, Clone)]
-pub enum Observation {
-    Features(Features),
-    /// An image for the server's models, with the request field it came in
-    /// (for error messages).
-    Image(ImageInput, String),
-}
-
-/// A validated keyframe whose features may still have to be computed from
-/// its image.
-#[derive(Debug, Clone)]
-pub struct PendingKeyframe {
-    pub key: KeyframeKey,
-    pub frame_id: u64,
-    pub timestamp: f64,
-    pub map_id: u64,
-    pub pose: Pose,
-    pub observation: Observation,
-}
-
-impl PendingKeyframe {
-    /// The keyframe, with the features made of its observation.
-    pub fn with_features(self, features: Features) -> SemanticKeyframe {
-        SemanticKeyframe {
-            key: self.key,
-            frame_id: self.frame_id,
-            timestamp: self.timestamp,
-            map_id: self.map_id,
-            pose: self.pose,
-            features,
-        }
-    }
 }
 
 /// An image: the encoding is known and there are bytes; whether they decode
@@ -609,8 +553,8 @@ pub fn query(mut r: proto::QueryRequest, limits: &Limits) -> Result<QuerySpec> {
         proto::Layers::FullSupportOnly => Layers::FULL_SUPPORT_ONLY,
     };
     let kind = match enumeration::<proto::QueryKind>("kind", r.kind)? {
-        proto::QueryKind::Unspecified => proto::QueryKind::LoopClosure,
-        kind => kind,
+        proto::QueryKind::Unspecified | proto::QueryKind::LoopClosure => QueryKind::LoopClosure,
+        proto::QueryKind::Relocalisation => QueryKind::Relocalisation,
     };
     let top_n = match r.top_n {
         None => limits.top_n,

@@ -9,6 +9,7 @@
 //! query whose caller goes away (cancellation, deadline) leaves its slot at
 //! once, and if it had just been handed the turn, passes it on.
 
+use super::request::QueryKind;
 use std::collections::{HashMap, VecDeque};
 use std::sync::atomic::{AtomicU64, Ordering};
 use std::sync::{Arc, Mutex};
@@ -18,10 +19,12 @@ use tokio::sync::oneshot;
 /// Whose queries compete with each other.
 #[derive(Debug, Clone, PartialEq, Eq, Hash)]
 pub struct SlotKey {
+    /// The robot that asks.
     pub robot_id: String,
+    /// Its SLAM session.
     pub session_id: String,
     /// The query kind (loop closure, relocalisation).
-    pub kind: i32,
+    pub kind: QueryKind,
 }
 
 /// The queries-waiting gauge.
@@ -62,6 +65,7 @@ pub enum Admission {
 }
 
 impl Admission {
+    /// Whether the query got its turn (rather than being superseded).
     pub fn is_run(&self) -> bool {
         matches!(self, Admission::Run(_))
     }
@@ -200,7 +204,11 @@ mod tests {
     use super::*;
     use std::time::Duration;
 
-    fn key(robot: &str, kind: i32) -> SlotKey {
+    fn key(robot: &str, kind: u8) -> SlotKey {
+        let kind = match kind {
+            1 => QueryKind::LoopClosure,
+            _ => QueryKind::Relocalisation,
+        };
         SlotKey {
             robot_id: robot.into(),
             session_id: "s".into(),

@@ -1,5 +1,277 @@
 //! Orchestration of one request: from validated domain values to an answer,
-//! over the store's index and the HuMem-VPR scoring. Knows nothing of gRPC.
+//! over the store, the models and the HuMem-VPR scoring. Knows nothing of
+//! gRPC: the API layer validates a request into [`request`] types, calls one
+//! method of [`Pipeline`] and converts what comes back.
+//!
+//! - [`request`]: the request domain types (a validated query, a keyframe
+//!   still to perceive, the query kind, the invalid-field error);
+//! - [`Pipeline`]: what each request does: latest-wins admission, turning
+//!   images into features (batched across a request's images), the
+//!   dimension check, the store write, the query scan on the blocking pool,
+//!   and the request-level metrics;
+//! - [`query`]: one query over the index, end to end, synchronous;
+//! - [`latest_wins`]: one pending query per client and kind, newest wins.
 
 pub mod latest_wins;
 pub mod query;
+pub mod request;
+
+use std::sync::Arc;
+use std::time::Duration;
+
+use humem_core::keyframe::{Features, SemanticKeyframe};
+use humem_core::vpr::VprParams;
+use humem_perception::{Perception, PerceptionError};
+use humem_store::{Mutation, MutationOutcome, Store, StoreError};
+
+use crate::metrics;
+use latest_wins::{Admission, LatestWins, SlotKey};
+use query::{QueryError, QueryOutcome};
+use request::{InvalidField, Observation, PendingKeyframe, QuerySpec};
+
+/// Why a request could not be carried out.
+#[derive(Debug, thiserror::Error)]
+pub enum PipelineError {
+    /// A field is wrong in a way only the store's state reveals (e.g. the
+    /// descriptor length).
+    #[error(transparent)]
+    Invalid(#[from] InvalidField),
+    /// An image was sent to a server that runs without models.
+    #[error("{field}: this server runs without perception models (perception.enabled = false); send features instead")]
+    NoPerception {
+        /// The request field that holds the image.
+        field: String,
+    },
+    /// The models could not turn an image into features.
+    #[error("{field}: {source}")]
+    Perception {
+        /// The request field that holds the image.
+        field: String,
+        /// What went wrong.
+        source: PerceptionError,
+    },
+    /// The store refused or failed the change.
+    #[error(transparent)]
+    Store(#[from] StoreError),
+    /// The query could not be answered.
+    #[error(transparent)]
+    Query(#[from] QueryError),
+    /// The blocking task of a query failed (panicked or was cancelled).
+    #[error("query task failed: {0}")]
+    Task(String),
+}
+
+/// Features of an observation and the time perception spent on them.
+pub type Resolved = (Features, Vec<(&'static str, Duration)>);
+
+/// A stored keyframe, with the features it was stored with.
+#[derive(Debug)]
+pub struct Inserted {
+    /// What the store did.
+    pub outcome: MutationOutcome,
+    /// The keyframe's features (computed, when it came as an image).
+    pub features: Features,
+    /// Time per perception stage.
+    pub timings: Vec<(&'static str, Duration)>,
+}
+
+/// What became of a query.
+#[derive(Debug)]
+pub enum QueryAnswer {
+    /// A newer query of the same client and kind took its place.
+    Superseded,
+    /// Ranked and selected.
+    Answered(QueryOutcome),
+}
+
+/// The service's parts a request needs, shared by all requests.
+#[derive(Clone)]
+pub struct Pipeline {
+    store: Store,
+    params: Arc<VprParams>,
+    /// The models; `None` when the server runs without perception.
+    perception: Option<Perception>,
+    /// Latest-wins slots of the queries.
+    scheduler: Arc<LatestWins>,
+}
+
+impl Pipeline {
+    /// A pipeline over these parts.
+    pub fn new(
+        store: Store,
+        params: VprParams,
+        perception: Option<Perception>,
+        scheduler: Arc<LatestWins>,
+    ) -> Self {
+        Pipeline {
+            store,
+            params: Arc::new(params),
+            perception,
+            scheduler,
+        }
+    }
+
+    /// The store, for read-only requests (statistics).
+    pub fn store(&self) -> &Store {
+        &self.store
+    }
+
+    /// Stores one keyframe, perceiving its image first if it sent one.
+    pub async fn insert(&self, pending: PendingKeyframe) -> Result<Inserted, PipelineError> {
+        let (keyframes, mut resolved) = self.resolve_all(vec![pending]).await?;
+        self.check_dims(|_| "keyframe".into(), &keyframes)?;
+        let (features, timings) = resolved.pop().unwrap_or_default();
+        let outcome = self.store.apply(Mutation::Insert(keyframes)).await?;
+        metrics::KEYFRAMES_INSERTED.inc();
+        metrics::observe_stages(&timings);
+        Ok(Inserted {
+            outcome,
+            features,
+            timings,
+        })
+    }
+
+    /// Stores keyframes atomically; their images share inferences.
+    pub async fn insert_batch(
+        &self,
+        pending: Vec<PendingKeyframe>,
+    ) -> Result<MutationOutcome, PipelineError> {
+        let (keyframes, resolved) = self.resolve_all(pending).await?;
+        for (_, timings) in &resolved {
+            metrics::observe_stages(timings);
+        }
+        self.check_dims(|i| format!("keyframes[{i}]"), &keyframes)?;
+        let count = keyframes.len() as u64;
+        let outcome = self.store.apply(Mutation::Insert(keyframes)).await?;
+        metrics::KEYFRAMES_INSERTED.inc_by(count);
+        Ok(outcome)
+    }
+
+    /// Any other change to the store (erase, resets, pose updates).
+    pub async fn apply(&self, mutation: Mutation) -> Result<MutationOutcome, PipelineError> {
+        Ok(self.store.apply(mutation).await?)
+    }
+
+    /// Answers a query: waits for the client's turn (a newer query may take
+    /// its place), perceives its image if it sent one, then ranks on the
+    /// blocking pool so that a large scan never stalls the async runtime.
+    pub async fn query(&self, mut spec: QuerySpec) -> Result<QueryAnswer, PipelineError> {
+        let kind = spec.kind.label();
+        let slot = SlotKey {
+            robot_id: spec.session.robot_id.clone(),
+            session_id: spec.session.session_id.clone(),
+            kind: spec.kind,
+        };
+        let _turn = match self.scheduler.admit(slot).await {
+            Admission::Run(turn) => turn,
+            Admission::Superseded => {
+                tracing::debug!("query superseded");
+                metrics::QUERIES_SUPERSEDED.with_label_values(&[kind]).inc();
+                return Ok(QueryAnswer::Superseded);
+            }
+        };
+        let mut perception_timings = Vec::new();
+        if let Some(observation) = spec.observation.take() {
+            let (features, timings) = self.resolve(observation).await?;
+            spec.observation = Some(Observation::Features(features));
+            perception_timings = timings;
+        }
+        let index = self.store.index_handle();
+        let params = self.params.clone();
+        let mut outcome = tokio::task::spawn_blocking(move || {
+            let index = index.read();
+            query::run(&index, &params, &spec)
+        })
+        .await
+        .map_err(|e| PipelineError::Task(e.to_string()))??;
+        perception_timings.append(&mut outcome.timings);
+        outcome.timings = perception_timings;
+        metrics::observe_stages(&outcome.timings);
+        metrics::CANDIDATES
+            .with_label_values(&[kind])
+            .observe(outcome.candidates.len() as f64);
+        for c in &outcome.candidates {
+            metrics::CANDIDATE_SCORE
+                .with_label_values(&[kind])
+                .observe(f64::from(c.score));
+        }
+        tracing::debug!(
+            candidates = outcome.candidates.len(),
+            eligible = outcome.eligible,
+            "query answered"
+        );
+        Ok(QueryAnswer::Answered(outcome))
+    }
+
+    /// The features of an observation: as sent, or made from its image.
+    async fn resolve(&self, observation: Observation) -> Result<Resolved, PipelineError> {
+        match observation {
+            Observation::Features(features) => Ok((features, Vec::new())),
+            Observation::Image(image, field) => {
+                let Some(perception) = self.perception.as_ref() else {
+                    return Err(PipelineError::NoPerception { field });
+                };
+                let extracted = perception
+                    .extract(image)
+                    .await
+                    .map_err(|source| PipelineError::Perception { field, source })?;
+                Ok((extracted.features, extracted.timings))
+            }
+        }
+    }
+
+    /// Resolves the observations of keyframes, all at once so that their
+    /// images share inferences.
+    async fn resolve_all(
+        &self,
+        pending: Vec<PendingKeyframe>,
+    ) -> Result<(Vec<SemanticKeyframe>, Vec<Resolved>), PipelineError> {
+        let mut metas = Vec::with_capacity(pending.len());
+        let mut observations = Vec::with_capacity(pending.len());
+        for mut p in pending {
+            let observation = std::mem::replace(
+                &mut p.observation,
+                Observation::Features(Features::default()),
+            );
+            observations.push(observation);
+            metas.push(p);
+        }
+        let resolved = futures::future::join_all(observations.into_iter().map(|o| self.resolve(o)))
+            .await
+            .into_iter()
+            .collect::<Result<Vec<_>, PipelineError>>()?;
+        let keyframes = metas
+            .into_iter()
+            .zip(&resolved)
+            .map(|(p, (features, _))| p.with_features(features.clone()))
+            .collect();
+        Ok((keyframes, resolved))
+    }
+
+    /// Refuses descriptors whose length differs from the store's, naming the
+    /// keyframe (the writer checks again, for the very first keyframes).
+    fn check_dims(
+        &self,
+        field: impl Fn(usize) -> String,
+        keyframes: &[SemanticKeyframe],
+    ) -> Result<(), InvalidField> {
+        let stored = self.store.index().dim();
+        let expected = if stored == 0 {
+            keyframes.first().map_or(0, |k| k.features.descriptor.len())
+        } else {
+            stored
+        };
+        for (i, kf) in keyframes.iter().enumerate() {
+            let found = kf.features.descriptor.len();
+            if found != expected {
+                return Err(InvalidField {
+                    field: format!("{}.features.global_descriptor", field(i)),
+                    reason: format!(
+                        "has {found} values but this store holds {expected}-value descriptors"
+                    ),
+                });
+            }
+        }
+        Ok(())
+    }
+}

@@ -9,7 +9,7 @@
 use std::cell::Cell;
 use std::time::Duration;
 
-use crate::api::validate::{InvalidField, Observation, QuerySpec};
+use super::request::{InvalidField, Observation, QuerySpec};
 use humem_core::index::Index;
 use humem_core::keyframe::{Features, KeyframeKey, Pose};
 use humem_core::vpr::{
@@ -20,8 +20,12 @@ use humem_core::vpr::{
 /// Why a query cannot be answered.
 #[derive(Debug, thiserror::Error)]
 pub enum QueryError {
+    /// A field is wrong in a way only the index reveals (descriptor
+    /// length, a frame or map id the stored keyframe cannot supply).
     #[error(transparent)]
     Invalid(#[from] InvalidField),
+    /// The query names a keyframe that is not stored and sends no features
+    /// to stand in for it.
     #[error("keyframe {} of robot {:?}, session {:?} is not stored, and the query sends no features", .0.keyframe_id, .0.robot_id, .0.session_id)]
     NotStored(KeyframeKey),
 }
@@ -29,40 +33,55 @@ pub enum QueryError {
 /// A matched object pair, with its class.
 #[derive(Debug, Clone)]
 pub struct ObjectPair {
+    /// The pair's indices and scores (`M_o`, `G`).
     pub matched: ObjectMatch,
+    /// Class of the query object.
     pub class_name: String,
 }
 
 /// A matched string pair, with the strings.
 #[derive(Debug, Clone)]
 pub struct TextPair {
+    /// The pair's indices and scores (`S_str`, `M_T`, `D_T`).
     pub matched: TextMatch,
+    /// The query's string.
     pub query_text: String,
+    /// The candidate's string.
     pub candidate_text: String,
 }
 
 /// A pair of disagreeing distinctive texts, with the strings.
 #[derive(Debug, Clone)]
 pub struct ConflictPair {
+    /// The pair's indices, agreement and disagreement `κ`.
     pub conflict: TextConflict,
+    /// The query's string of the best-agreeing pair.
     pub query_text: String,
+    /// The candidate's string of that pair.
     pub candidate_text: String,
 }
 
 /// A missing distinctive object, with its class.
 #[derive(Debug, Clone)]
 pub struct MissingPair {
+    /// Which side lacks it, its index and its weight in `X_o`.
     pub missing: MissingObject,
+    /// Class of the missing object.
     pub class_name: String,
 }
 
 /// A selected candidate and why.
 #[derive(Debug, Clone)]
 pub struct Candidate {
+    /// The stored keyframe proposed: robot, session and keyframe id.
     pub key: KeyframeKey,
+    /// Its source-frame id.
     pub frame_id: u64,
+    /// Its timestamp, in seconds.
     pub timestamp: f64,
+    /// Its atlas map id within its session.
     pub map_id: u64,
+    /// Its stored camera pose in that map.
     pub pose: Pose,
     /// The score the threshold applied to (see `vpr::RankedCandidate`).
     pub score: f32,
@@ -70,23 +89,36 @@ pub struct Candidate {
     pub raw_score: f32,
     /// `c_s` (calibrated) or `S_s` (raw calibration).
     pub scene_confidence: f32,
+    /// The query's null distribution (median `S_s` `m` and its sample
+    /// count), the same for every candidate.
     pub null: NullModel,
+    /// SCAL evidence: `S_s`, `s_e`, `C_cat` and the temporal depth.
     pub scene: ScalHit,
+    /// `S_o` ∈ [0, 1], the object-layout score; 0 when OSRL is off.
     pub object_score: f32,
+    /// `S_t` ∈ [0, 1], the object-grounded text score; 0 when OGTL is off.
     pub text_score: f32,
+    /// `E_t` ∈ [0, 1], the distinctiveness weight of the text evidence.
     pub text_distinctiveness: f32,
+    /// `B = clip(g_o S_o + g_t E_t S_t, 0, 1)`, the combined corroboration.
     pub corroboration: f32,
+    /// Matched object pairs (OSRL), by query object.
     pub object_matches: Vec<ObjectPair>,
+    /// Matched string pairs on matched objects (OGTL).
     pub text_matches: Vec<TextPair>,
     /// `X_t`, `X_o` and `C` (the pairs are spelled out below).
     pub contradiction: Contradiction,
+    /// Object pairs whose distinctive texts disagree, with the strings.
     pub text_conflicts: Vec<ConflictPair>,
+    /// Distinctive objects without a counterpart, with their classes.
     pub missing_objects: Vec<MissingPair>,
 }
 
 /// The answer to a query.
 #[derive(Debug, Clone, Default)]
 pub struct QueryOutcome {
+    /// Candidates scoring above the threshold (every ranked one for a
+    /// threshold of 0), best first, at most `top_n`.
     pub candidates: Vec<Candidate>,
     /// Stored keyframes that passed eligibility and scope.
     pub eligible: u64,

@@ -20,8 +20,9 @@
 //! each row's norm, and compared with an integer dot product that LLVM
 //! vectorises.
 
-/// Thumbnail width and height, in pixels.
+/// Thumbnail width, in pixels.
 pub const WIDTH: usize = 64;
+/// Thumbnail height, in pixels.
 pub const HEIGHT: usize = 48;
 /// Values in a thumbnail.
 pub const LEN: usize = WIDTH * HEIGHT;
@@ -43,10 +44,12 @@ pub struct AppearanceMatrix {
 }
 
 impl AppearanceMatrix {
+    /// Number of rows (keyframes), with or without a thumbnail.
     pub fn len(&self) -> usize {
         self.norms.len()
     }
 
+    /// Whether the matrix has no rows.
     pub fn is_empty(&self) -> bool {
         self.norms.is_empty()
     }
@@ -92,6 +95,7 @@ impl AppearanceMatrix {
         self.norms.swap_remove(i);
     }
 
+    /// Removes every row.
     pub fn clear(&mut self) {
         self.data.clear();
         self.norms.clear();

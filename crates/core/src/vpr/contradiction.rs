@@ -39,7 +39,9 @@ use crate::vpr::text::{distinct_agreement, is_generic};
 /// One pair of gated objects whose distinctive texts disagree.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct TextConflict {
+    /// Index of the object among the query's objects.
     pub query_object: usize,
+    /// Index of its counterpart among the candidate's objects.
     pub candidate_object: usize,
     /// The query string of the best-agreeing pair of strings (`u*`).
     pub query_text: usize,

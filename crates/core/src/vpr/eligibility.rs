@@ -13,9 +13,11 @@ use crate::keyframe::{KeyframeKey, SessionKey};
 /// One map, or every map of a robot's session when `session_id` is `None`.
 #[derive(Debug, Clone, PartialEq, Eq)]
 pub struct MapRef {
+    /// The robot that made the map.
     pub robot_id: String,
     /// `None` matches any session of the robot.
     pub session_id: Option<String>,
+    /// Atlas map id within the session.
     pub map_id: u64,
 }
 
@@ -30,7 +32,9 @@ pub enum Scope {
     AllMaps,
     /// Candidates whose robot is listed, or whose map matches a [`MapRef`].
     Listed {
+        /// Robots all of whose keyframes may be proposed.
         robot_ids: Vec<String>,
+        /// Maps whose keyframes may be proposed.
         maps: Vec<MapRef>,
     },
 }
@@ -38,6 +42,7 @@ pub enum Scope {
 /// What the eligibility rule needs to know about the query.
 #[derive(Debug, Clone, PartialEq, Eq)]
 pub struct QueryContext {
+    /// The query's robot and session.
     pub session: SessionKey,
     /// The query's own keyframe id, if it is (or will be) stored.
     pub keyframe_id: Option<u64>,
@@ -47,15 +52,18 @@ pub struct QueryContext {
     pub map_id: u64,
     /// Minimum `|f_t − f_i|` within the same robot and session (paper: 100).
     pub min_frame_gap: u64,
+    /// Which maps the candidates may come from.
     pub scope: Scope,
 }
 
 /// Candidate metadata needed for the rule.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub struct CandidateMeta<'a> {
+    /// Identity of the stored keyframe.
     pub key: &'a KeyframeKey,
     /// Source-frame id `f_i`.
     pub frame_id: u64,
+    /// Atlas map id of the candidate within its session.
     pub map_id: u64,
 }
 

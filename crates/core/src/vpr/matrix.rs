@@ -35,6 +35,7 @@ impl DescriptorMatrix {
         self.rows
     }
 
+    /// Whether the matrix has no rows.
     pub fn is_empty(&self) -> bool {
         self.rows == 0
     }

@@ -82,7 +82,9 @@ pub fn text_profile_in<M: KeyframeMemory + ?Sized>(
 /// One matched string pair.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct TextMatch {
+    /// Index of the object among the query's objects.
     pub query_object: usize,
+    /// Index of the matched object among the candidate's objects.
     pub candidate_object: usize,
     /// Index into the query object's texts (`u`).
     pub query_text: usize,

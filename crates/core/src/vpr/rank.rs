@@ -79,9 +79,14 @@ pub fn rank<M: KeyframeMemory + ?Sized>(
 /// Wall time spent in each layer by one [`rank_timed`] call.
 #[derive(Debug, Clone, Copy, Default, PartialEq)]
 pub struct StageTimes {
+    /// The SCAL scan over every eligible row, with the null model.
     pub scal: Duration,
+    /// OSRL on the top K.
     pub osrl: Duration,
+    /// OGTL and the contradiction layer on the top K, text profiles
+    /// included.
     pub ogtl: Duration,
+    /// Corroboration, calibration, fusion and the final sort.
     pub fusion: Duration,
 }
 

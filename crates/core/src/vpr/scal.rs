@@ -55,6 +55,8 @@ impl SceneProfile {
     /// Class ids below this are looked up in a dense table.
     pub const DENSE_LIMIT: u32 = 1 << 16;
 
+    /// Prepares one side's sparse scene distribution. Probabilities are
+    /// clipped to [0, 1]; a class listed twice counts once.
     pub fn new(classes: &[SceneClass]) -> SceneProfile {
         let mut sparse: Vec<(u32, f32)> = classes
             .iter()

@@ -21,18 +21,29 @@ use std::path::{Path, PathBuf};
 /// Errors of loading a recogniser dictionary or pairing it with a model.
 #[derive(Debug, thiserror::Error)]
 pub enum DictionaryError {
+    /// The dictionary file could not be read.
     #[error("reading the OCR dictionary {path}: {source}")]
     Io {
+        /// The file's path.
         path: PathBuf,
+        /// The read error.
         #[source]
         source: std::io::Error,
     },
+    /// Fewer than two entries: the blank and at least one character.
     #[error("the OCR dictionary has {0} entries; it needs the blank and at least one character")]
     TooShort(usize),
+    /// The first line, given here, is not the CTC blank `blank`.
     #[error("the OCR dictionary's first line is {0:?}; expected the CTC blank \"blank\"")]
     MissingBlank(String),
+    /// The recogniser's class count differs from the dictionary's length.
     #[error("the text recogniser outputs {classes} classes but the OCR dictionary has {entries} entries; use the dictionary that belongs to the model")]
-    ClassMismatch { classes: usize, entries: usize },
+    ClassMismatch {
+        /// Classes of the recogniser's output.
+        classes: usize,
+        /// Entries of the dictionary, the blank included.
+        entries: usize,
+    },
 }
 
 /// Characters of the recogniser's classes, index-aligned (entry 0 is the blank).

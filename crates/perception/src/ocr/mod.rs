@@ -40,6 +40,7 @@ pub struct TextLine {
     pub rect: Rect,
     /// Detection score of the region.
     pub detection_score: f32,
+    /// The text read.
     pub text: String,
     /// Recognition confidence.
     pub confidence: f32,
@@ -48,7 +49,9 @@ pub struct TextLine {
 /// Time spent in each OCR stage for one request.
 #[derive(Debug, Clone, Copy, Default)]
 pub struct OcrTimes {
+    /// Text detection: queueing plus inference.
     pub detection: Duration,
+    /// Line recognition: the slowest line's queueing plus inference.
     pub recognition: Duration,
 }
 
@@ -64,7 +67,9 @@ pub struct LineRecognizer {
 
 /// A normalised line image: `[3, height, width]` values and its width.
 pub struct LineInput {
+    /// Width in pixels (the height is the recogniser's line height).
     pub width: usize,
+    /// The three planes in BGR order, each row-major.
     pub data: Vec<f32>,
 }
 
@@ -149,7 +154,9 @@ pub struct Ocr {
 
 /// Sessions for the OCR models, one per worker.
 pub struct OcrModels {
+    /// The text detector (DBNet), one per worker.
     pub detectors: Vec<ImageModel>,
+    /// The line recogniser, one per worker.
     pub recognizers: Vec<LineRecognizer>,
 }
 
@@ -217,6 +224,8 @@ fn io_names(session: &Session, model: &str) -> Result<(String, String), RuntimeE
 }
 
 impl Ocr {
+    /// Starts the detector's and the recogniser's batchers (queues `ocr-det`
+    /// and `ocr-rec`, reported to `observer`).
     pub fn new(
         models: OcrModels,
         config: &OcrConfig,

@@ -117,7 +117,7 @@ fn query_defaults_come_from_the_limits() {
     assert_eq!(spec.threshold, 0.7);
     assert_eq!(spec.layers, Layers::FULL);
     assert_eq!(spec.scope, Scope::AllMaps);
-    assert_eq!(spec.kind, proto::QueryKind::LoopClosure);
+    assert_eq!(spec.kind, QueryKind::LoopClosure);
 }
 
 #[test]
