@@ -266,6 +266,8 @@ pub fn queue_observer() -> SharedObserver {
     std::sync::Arc::new(PrometheusQueues)
 }
 
+/// Registers every metric (so each is exported from the first scrape, at
+/// zero) and sets the build info; call once at start.
 pub fn init() {
     BUILD_INFO
         .with_label_values(&[env!("CARGO_PKG_VERSION")])

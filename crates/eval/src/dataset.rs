@@ -36,24 +36,7 @@ pub struct Dataset {
 
 /// The JPEG and PNG images of a folder, sorted by name (their index).
 pub fn image_paths(dir: &Path) -> anyhow::Result<Vec<PathBuf>> {
-    let mut paths: Vec<PathBuf> = std::fs::read_dir(dir)
-        .with_context(|| format!("reading {}", dir.display()))?
-        .filter_map(|e| e.ok().map(|e| e.path()))
-        .filter(|p| {
-            matches!(
-                p.extension()
-                    .and_then(|e| e.to_str())
-                    .map(str::to_ascii_lowercase)
-                    .as_deref(),
-                Some("jpg" | "jpeg" | "png")
-            )
-        })
-        .collect();
-    paths.sort();
-    if paths.is_empty() {
-        bail!("no JPEG or PNG images in {}", dir.display());
-    }
-    Ok(paths)
+    humem_perception::image::image_files(dir).with_context(|| format!("reading {}", dir.display()))
 }
 
 /// Poses of an image folder, if a pose file lies beside it.

@@ -89,7 +89,7 @@ pub struct Candidate {
     pub raw_score: f32,
     /// `c_s` (calibrated) or `S_s` (raw calibration).
     pub scene_confidence: f32,
-    /// The query's null distribution (median `S_s` `m` and its sample
+    /// The query's null distribution (`m`, the median `S_s`, and its sample
     /// count), the same for every candidate.
     pub null: NullModel,
     /// SCAL evidence: `S_s`, `s_e`, `C_cat` and the temporal depth.

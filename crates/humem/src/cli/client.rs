@@ -5,7 +5,6 @@ use std::path::Path;
 
 use anyhow::{bail, Context};
 use serde::de::DeserializeOwned;
-use tonic::transport::Channel;
 
 use super::{Command, Output};
 use humem_server::client::connect;

@@ -124,7 +124,8 @@ impl Content {
 }
 
 fn load_images(dir: &std::path::Path) -> anyhow::Result<Vec<Vec<u8>>> {
-    humem_eval::dataset::image_paths(dir)?
+    humem_perception::image::image_files(dir)
+        .with_context(|| format!("reading {}", dir.display()))?
         .iter()
         .map(|p| std::fs::read(p).with_context(|| format!("reading {}", p.display())))
         .collect()
