@@ -309,17 +309,8 @@ fn reflection_v1alpha_lists_and_describes() {
     let server = Server::start(dir.path());
     let address = server.url.trim_start_matches("http://");
     let script = crate::harness::repo_root().join("tools/reflection_check.py");
-    let output = std::process::Command::new(&python)
-        .arg(script)
-        .arg(address)
-        .output()
-        .unwrap();
-    let stdout = String::from_utf8_lossy(&output.stdout);
-    assert!(
-        output.status.success(),
-        "{stdout}{}",
-        String::from_utf8_lossy(&output.stderr)
-    );
+    let stdout =
+        crate::harness::output_of(std::process::Command::new(&python).arg(script).arg(address));
     let lines: Vec<&str> = stdout.lines().collect();
     for expected in [
         "service humem.v1.PlaceRecognition",

@@ -5,28 +5,22 @@
 use std::path::Path;
 use std::process::Command;
 
-use crate::harness::{datasets, models_dir, Server};
+use crate::harness::{datasets, models_dir, output_of, Server};
 
 /// Runs `humem eval` on gardens-daynight with the ablation and B15/D80 into
 /// `out`; returns the JSON and the table printed.
 fn eval_gardens(datasets: &Path, out: &Path, extra: &[&str]) -> (serde_json::Value, String) {
     let json = out.join("eval.json");
-    let output = Command::new(env!("CARGO_BIN_EXE_humem"))
-        .args(["eval", "--ablation", "--degrade", "B15/D80", "--dataset"])
-        .arg(datasets.join("gardens-daynight"))
-        .arg("--json")
-        .arg(&json)
-        .arg("--report")
-        .arg(out.join("report"))
-        .args(extra)
-        .env("HUMEM_PERCEPTION__MODELS_DIR", models_dir())
-        .output()
-        .unwrap();
-    let stdout = String::from_utf8_lossy(&output.stdout).to_string();
-    assert!(
-        output.status.success(),
-        "{stdout}{}",
-        String::from_utf8_lossy(&output.stderr)
+    let stdout = output_of(
+        Command::new(env!("CARGO_BIN_EXE_humem"))
+            .args(["eval", "--ablation", "--degrade", "B15/D80", "--dataset"])
+            .arg(datasets.join("gardens-daynight"))
+            .arg("--json")
+            .arg(&json)
+            .arg("--report")
+            .arg(out.join("report"))
+            .args(extra)
+            .env("HUMEM_PERCEPTION__MODELS_DIR", models_dir()),
     );
     let value = serde_json::from_slice(&std::fs::read(&json).unwrap()).unwrap();
     (value, stdout)

@@ -3,7 +3,7 @@
 
 use humem_server::proto;
 
-use crate::harness::Server;
+use crate::harness::{output_of, Server};
 use crate::scenes::{self, World};
 
 #[tokio::test(flavor = "multi_thread")]
@@ -127,8 +127,8 @@ async fn a_flood_of_inserts_is_pushed_back_not_queued_without_bound() {
 async fn the_load_generator_reports_what_it_achieved() {
     let dir = tempfile::tempdir().unwrap();
     let server = Server::start(dir.path());
-    let out = std::process::Command::new(env!("CARGO_BIN_EXE_humem"))
-        .args([
+    let text = output_of(
+        std::process::Command::new(env!("CARGO_BIN_EXE_humem")).args([
             "load",
             "--server",
             &server.url,
@@ -138,14 +138,7 @@ async fn the_load_generator_reports_what_it_achieved() {
             "20",
             "--duration",
             "2",
-        ])
-        .output()
-        .unwrap();
-    let text = String::from_utf8(out.stdout).unwrap();
-    assert!(
-        out.status.success(),
-        "{text}{}",
-        String::from_utf8_lossy(&out.stderr)
+        ]),
     );
     let row = |call: &str| -> Vec<f64> {
         text.lines()

@@ -3,7 +3,7 @@
 
 use std::process::Command;
 
-use crate::harness::{datasets, models_dir};
+use crate::harness::{datasets, models_dir, output_of};
 
 #[test]
 fn text_recall_reads_a_shop_sign_on_the_town_loop() {
@@ -12,19 +12,13 @@ fn text_recall_reads_a_shop_sign_on_the_town_loop() {
     let json = out.path().join("text.json");
     // Frames 60..70: the grocery's sign comes into view at 64 and is read
     // whole from 65 on; the frames before have no distinctive sign.
-    let output = Command::new(env!("CARGO_BIN_EXE_humem"))
-        .args(["text-recall", "--frames", "60..70", "--dataset"])
-        .arg(datasets.join("town-dev/loop"))
-        .arg("--json")
-        .arg(&json)
-        .env("HUMEM_PERCEPTION__MODELS_DIR", models_dir())
-        .output()
-        .unwrap();
-    let stdout = String::from_utf8_lossy(&output.stdout);
-    assert!(
-        output.status.success(),
-        "{stdout}{}",
-        String::from_utf8_lossy(&output.stderr)
+    let stdout = output_of(
+        Command::new(env!("CARGO_BIN_EXE_humem"))
+            .args(["text-recall", "--frames", "60..70", "--dataset"])
+            .arg(datasets.join("town-dev/loop"))
+            .arg("--json")
+            .arg(&json)
+            .env("HUMEM_PERCEPTION__MODELS_DIR", models_dir()),
     );
     assert!(stdout.contains("recall"), "{stdout}");
     let value: serde_json::Value = serde_json::from_slice(&std::fs::read(&json).unwrap()).unwrap();

@@ -111,12 +111,13 @@ fn whole(image: &image::RgbImage) -> Rect {
     }
 }
 
-/// Text detection per image at the camera's aspect ratio (the configured
-/// long side) against the fixed 640x480 letterbox it replaced, one image at
-/// a time, alternating, in this run.
+/// Text detection per image at the camera's aspect ratio (`after`: the
+/// inputs at the configured long side) against the fixed 640x480 letterbox
+/// it replaced, one image at a time, alternating, in this run.
 fn compare_detection_shapes(
     detector: &mut ImageModel,
     decoded: &[image::RgbImage],
+    after: &[Planes],
     config: &OcrConfig,
     repeats: usize,
 ) -> anyhow::Result<()> {
@@ -126,28 +127,12 @@ fn compare_detection_shapes(
             .min(BEFORE[1] as f32 / image.height() as f32)
             * image.width().max(image.height()) as f32;
         let (planes, _) = canvas::detector_input(image, whole(image), long.round() as u32);
-        let mut data = vec![0.0f32; 3 * BEFORE[0] * BEFORE[1]];
-        for c in 0..3 {
-            for y in 0..planes.height.min(BEFORE[1]) {
-                let w = planes.width.min(BEFORE[0]);
-                let src = &planes.data[(c * planes.height + y) * planes.width..][..w];
-                data[(c * BEFORE[1] + y) * BEFORE[0]..][..w].copy_from_slice(src);
-            }
-        }
-        Planes {
-            width: BEFORE[0],
-            height: BEFORE[1],
-            data,
-        }
+        canvas::padded(&planes, BEFORE[0], BEFORE[1])
     };
     let before: Vec<Planes> = decoded.iter().map(letterboxed).collect();
-    let after: Vec<Planes> = decoded
-        .iter()
-        .map(|i| canvas::detector_input(i, whole(i), config.detector_long_side).0)
-        .collect();
     let (mut t_before, mut t_after) = (Vec::new(), Vec::new());
     for r in 0..repeats.max(1) * 2 {
-        for (set, samples) in [(&before, &mut t_before), (&after, &mut t_after)] {
+        for (set, samples) in [(&before[..], &mut t_before), (after, &mut t_after)] {
             let input = set[r % set.len()].clone();
             let started = Instant::now();
             detector.run(vec![input])?;
@@ -319,7 +304,13 @@ pub async fn perception(config: Config, args: PerceptionBench) -> anyhow::Result
             },
             args.repeats,
         )?;
-        compare_detection_shapes(&mut models.detectors[0], &decoded, o, args.repeats)?;
+        compare_detection_shapes(
+            &mut models.detectors[0],
+            &decoded,
+            &det_inputs,
+            o,
+            args.repeats,
+        )?;
     }
 
     // Part 2: the pipeline under concurrent clients, unbatched then batched.

@@ -157,7 +157,7 @@ pub fn features(f: &Features) -> proto::Features {
 }
 
 /// A perception failure as a status naming the image field.
-pub fn perception_status(field: &str, e: PerceptionError) -> Status {
+fn perception_status(field: &str, e: PerceptionError) -> Status {
     match e {
         PerceptionError::Image(e) => Status::invalid_argument(format!("{field}.{e}")),
         PerceptionError::Model(BatchError::Busy { .. }) => {
@@ -190,25 +190,23 @@ pub fn query_response(outcome: &QueryOutcome) -> proto::QueryResponse {
 }
 
 /// The status a store error answers with.
-pub fn store_status(e: StoreError) -> Status {
-    {
-        match e {
-            StoreError::DimensionMismatch { .. } => {
-                Status::invalid_argument(format!("features.global_descriptor: {e}"))
-            }
-            StoreError::QueueFull { .. } => {
-                let mut status = Status::resource_exhausted(e.to_string());
-                status.metadata_mut().insert(
-                    "retry-after-ms",
-                    tonic::metadata::MetadataValue::from(50u32),
-                );
-                status
-            }
-            StoreError::WriterGone => Status::unavailable(e.to_string()),
-            _ => {
-                tracing::error!(error = %e, "store failure");
-                Status::internal(e.to_string())
-            }
+fn store_status(e: StoreError) -> Status {
+    match e {
+        StoreError::DimensionMismatch { .. } => {
+            Status::invalid_argument(format!("features.global_descriptor: {e}"))
+        }
+        StoreError::QueueFull { .. } => {
+            let mut status = Status::resource_exhausted(e.to_string());
+            status.metadata_mut().insert(
+                "retry-after-ms",
+                tonic::metadata::MetadataValue::from(50u32),
+            );
+            status
+        }
+        StoreError::WriterGone => Status::unavailable(e.to_string()),
+        _ => {
+            tracing::error!(error = %e, "store failure");
+            Status::internal(e.to_string())
         }
     }
 }
@@ -229,7 +227,7 @@ impl From<PipelineError> for Status {
 impl From<QueryError> for Status {
     fn from(e: QueryError) -> Status {
         match e {
-            QueryError::Invalid(field) => Status::invalid_argument(field.to_string()),
+            QueryError::Invalid(field) => field.into(),
             QueryError::NotStored(_) => Status::not_found(format!("keyframe_id: {e}")),
         }
     }

@@ -56,23 +56,31 @@ pub fn detector_input(image: &RgbImage, region: Rect, long_side: u32) -> (Planes
     let resized = resize(&super::crop(image, region), fw, fh);
     let mut planes = Vec::with_capacity(3 * (fw * fh) as usize);
     append_chw(&resized, Channels::Bgr, MEAN, STD, &mut planes);
+    let scaled = Planes {
+        width: fw as usize,
+        height: fh as usize,
+        data: planes,
+    };
     let [iw, ih] = placement.input.map(|s| s as usize);
-    let (fw, fh) = (fw as usize, fh as usize);
-    let mut data = vec![0.0f32; 3 * iw * ih];
+    (padded(&scaled, iw, ih), placement)
+}
+
+/// `planes` at the top-left of a `width` x `height` input, zero (the mean)
+/// elsewhere; what does not fit is cut off.
+pub fn padded(planes: &Planes, width: usize, height: usize) -> Planes {
+    let mut data = vec![0.0f32; 3 * width * height];
+    let w = planes.width.min(width);
     for c in 0..3 {
-        for y in 0..fh {
-            let src = &planes[(c * fh + y) * fw..][..fw];
-            data[(c * ih + y) * iw..][..fw].copy_from_slice(src);
+        for y in 0..planes.height.min(height) {
+            let src = &planes.data[(c * planes.height + y) * planes.width..][..w];
+            data[(c * height + y) * width..][..w].copy_from_slice(src);
         }
     }
-    (
-        Planes {
-            width: iw,
-            height: ih,
-            data,
-        },
-        placement,
-    )
+    Planes {
+        width,
+        height,
+        data,
+    }
 }
 
 #[cfg(test)]
