@@ -30,6 +30,17 @@ pub struct SessionKey {
     pub session_id: String,
 }
 
+impl SessionKey {
+    /// The key of keyframe `keyframe_id` of this session.
+    pub fn keyframe(&self, keyframe_id: u64) -> KeyframeKey {
+        KeyframeKey {
+            robot_id: self.robot_id.clone(),
+            session_id: self.session_id.clone(),
+            keyframe_id,
+        }
+    }
+}
+
 impl KeyframeKey {
     /// The session this keyframe belongs to.
     pub fn session(&self) -> SessionKey {

@@ -16,7 +16,7 @@ use std::time::{Duration, Instant};
 use anyhow::{bail, Context};
 
 use humem_perception::batcher::BatchModel;
-use humem_perception::config::OcrConfig;
+use humem_perception::config::{OcrConfig, PerceptionConfig};
 use humem_perception::geometry::Rect;
 use humem_perception::image::{self as img, EncodedImage, Encoding};
 use humem_perception::model::{ImageModel, Planes};
@@ -192,19 +192,7 @@ async fn drive(
 
 /// `humem bench perception`.
 pub async fn perception(config: Config, args: PerceptionBench) -> anyhow::Result<()> {
-    let dir = match args.images {
-        Some(dir) => dir,
-        None => {
-            let default = PathBuf::from("../shared/datasets/rtabmap-loop/sequence");
-            if !default.is_dir() {
-                bail!(
-                    "no images: pass --images DIR (the default {} does not exist)",
-                    default.display()
-                );
-            }
-            default
-        }
-    };
+    let dir = images_dir(args.images.clone())?;
     let images = Arc::new(load_images(&dir)?);
     let decoded: Vec<image::RgbImage> = images
         .iter()
@@ -218,8 +206,37 @@ pub async fn perception(config: Config, args: PerceptionBench) -> anyhow::Result
         p.provider,
         p.session_options().intra_threads
     );
+    models_alone(p, &decoded, args.repeats)?;
+    let batched_timings = pipeline_under_load(&config, &images, &args).await?;
+    stage_table(&batched_timings);
+    Ok(())
+}
 
-    // Part 1: each model alone.
+/// The images folder: `--images`, or the rtabmap-loop sequence of the
+/// shared data sets.
+fn images_dir(images: Option<PathBuf>) -> anyhow::Result<PathBuf> {
+    Ok(match images {
+        Some(dir) => dir,
+        None => {
+            let default = PathBuf::from("../shared/datasets/rtabmap-loop/sequence");
+            if !default.is_dir() {
+                bail!(
+                    "no images: pass --images DIR (the default {} does not exist)",
+                    default.display()
+                );
+            }
+            default
+        }
+    })
+}
+
+/// Part 1: each model alone, called directly, per batch size; then text
+/// detection at the camera's shape against the old letterbox.
+fn models_alone(
+    p: &PerceptionConfig,
+    decoded: &[image::RgbImage],
+    repeats: usize,
+) -> anyhow::Result<()> {
     let env = runtime::environment(&runtime::library_path(
         p.onnxruntime.as_deref(),
         &p.models_dir,
@@ -259,7 +276,7 @@ pub async fn perception(config: Config, args: PerceptionBench) -> anyhow::Result
         "descriptor+scene",
         &mut global,
         &|i| global_inputs[i % global_inputs.len()].clone(),
-        args.repeats,
+        repeats,
     )?;
     if let Some(o) = &p.ocr {
         let dictionary = ocr::ctc::Dictionary::load(&p.resolve(&o.dictionary))?;
@@ -276,7 +293,7 @@ pub async fn perception(config: Config, args: PerceptionBench) -> anyhow::Result
             "ocr detection",
             &mut models.detectors[0],
             &|i| det_inputs[i % det_inputs.len()].clone(),
-            args.repeats,
+            repeats,
         )?;
         // Text lines: a strip of each image, 6:1 like a short sign.
         let lines: Vec<ocr::LineInput> = decoded
@@ -302,18 +319,22 @@ pub async fn perception(config: Config, args: PerceptionBench) -> anyhow::Result
                     data: l.data.clone(),
                 }
             },
-            args.repeats,
+            repeats,
         )?;
-        compare_detection_shapes(
-            &mut models.detectors[0],
-            &decoded,
-            &det_inputs,
-            o,
-            args.repeats,
-        )?;
+        compare_detection_shapes(&mut models.detectors[0], decoded, &det_inputs, o, repeats)?;
     }
 
-    // Part 2: the pipeline under concurrent clients, unbatched then batched.
+    Ok(())
+}
+
+/// Part 2: the whole pipeline under concurrent clients, unbatched then
+/// batched; returns the batched run's stage timings.
+async fn pipeline_under_load(
+    config: &Config,
+    images: &Arc<Vec<Vec<u8>>>,
+    args: &PerceptionBench,
+) -> anyhow::Result<Vec<Vec<(&'static str, Duration)>>> {
+    let p = &config.perception;
     let top_k = config.store.scene_top_k;
     let mut unbatched_config = p.clone();
     unbatched_config.max_batch = 1;
@@ -321,8 +342,8 @@ pub async fn perception(config: Config, args: PerceptionBench) -> anyhow::Result
     batched_config.max_batch = args.batch.max(2);
     let unbatched = Perception::load(&unbatched_config, top_k)?;
     let batched = Perception::load(&batched_config, top_k)?;
-    drive(&batched, &images, 1, 2).await?;
-    drive(&unbatched, &images, 1, 2).await?;
+    drive(&batched, images, 1, 2).await?;
+    drive(&unbatched, images, 1, 2).await?;
     println!(
         "\n2. whole pipeline (decode, descriptor+scene, OCR), {} clients x {} images; gain = throughput vs unbatched",
         args.clients, args.requests
@@ -332,7 +353,7 @@ pub async fn perception(config: Config, args: PerceptionBench) -> anyhow::Result
         "", "images/s", "mean ms", "p95 ms", "gain"
     );
     // One client alone: the latency a single SLAM client sees.
-    let (wall, latencies, _) = drive(&batched, &images, 1, args.requests).await?;
+    let (wall, latencies, _) = drive(&batched, images, 1, args.requests).await?;
     let (mean, p95) = summary(&latencies);
     println!(
         "{:<30} {:>10.1} {mean:>10.1} {p95:>10.1} {:>8}",
@@ -347,7 +368,7 @@ pub async fn perception(config: Config, args: PerceptionBench) -> anyhow::Result
         ("batched", &batched, batched_config.max_batch),
     ] {
         let (wall, latencies, timings) =
-            drive(perception, &images, args.clients, args.requests).await?;
+            drive(perception, images, args.clients, args.requests).await?;
         let rate = latencies.len() as f64 / wall.as_secs_f64();
         if max_batch == 1 {
             baseline = rate;
@@ -366,17 +387,21 @@ pub async fn perception(config: Config, args: PerceptionBench) -> anyhow::Result
         );
     }
 
-    // Part 3: stages of the batched run (queueing included).
+    Ok(batched_timings)
+}
+
+/// Part 3: the stages of the batched run (queueing included).
+fn stage_table(timings: &[Vec<(&'static str, Duration)>]) {
     println!("\n3. stages of the batched run (ms, queueing included)");
     println!("{:<12} {:>10} {:>10}", "stage", "mean", "p95");
     let mut stages: Vec<&'static str> = Vec::new();
-    for t in batched_timings.iter().flatten() {
+    for t in timings.iter().flatten() {
         if !stages.contains(&t.0) {
             stages.push(t.0);
         }
     }
     for stage in stages {
-        let samples: Vec<Duration> = batched_timings
+        let samples: Vec<Duration> = timings
             .iter()
             .flatten()
             .filter(|t| t.0 == stage)
@@ -385,5 +410,4 @@ pub async fn perception(config: Config, args: PerceptionBench) -> anyhow::Result
         let (mean, p95) = summary(&samples);
         println!("{stage:<12} {mean:>10.1} {p95:>10.1}");
     }
-    Ok(())
 }

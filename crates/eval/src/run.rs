@@ -503,14 +503,7 @@ pub async fn run(config: Config, args: EvalArgs) -> anyhow::Result<()> {
         min_frame_gap: args.min_gap.unwrap_or(100),
     };
     let dataset = Dataset::open(&args.dataset, &rule, args.min_gap)?;
-    let methods: Vec<(&'static str, Layers)> = if args.ablation {
-        ["scal", "scal+osrl", "scal+ogtl", "full-no-c", "full"]
-            .iter()
-            .map(|l| parse_layers(l))
-            .collect::<anyhow::Result<_>>()?
-    } else {
-        vec![parse_layers(&args.layers)?]
-    };
+    let methods = methods(&args)?;
     let selection = Selection::new(&dataset, (!args.all_queries).then_some(args.max_queries));
     let point = OperatingPoint {
         threshold: config.vpr.threshold(),
@@ -531,37 +524,7 @@ pub async fn run(config: Config, args: EvalArgs) -> anyhow::Result<()> {
             .map(|s| format!(", measured through the service at {s}"))
             .unwrap_or_default()
     );
-
-    enum Backend {
-        Local(Box<(Perception, LocalDatabase)>),
-        Remote(Box<super::remote::Remote>),
-    }
-    let mut backend = match &args.server {
-        None => {
-            let perception = Perception::load(&config.perception, config.store.scene_top_k)
-                .context("loading the perception models (run scripts/setup-models.sh)")?;
-            let annotations = match args.objects {
-                ObjectSource::Models => None,
-                ObjectSource::Annotations => Some(Catalog::find(&args.dataset)?),
-            };
-            let database =
-                LocalDatabase::build(&perception, &dataset, annotations, args.grey).await?;
-            Backend::Local(Box::new((perception, database)))
-        }
-        Some(url) => {
-            if args.grey {
-                anyhow::bail!("--grey runs in-process only, not with --server");
-            }
-            if args.objects == ObjectSource::Annotations {
-                anyhow::bail!("--objects annotations replaces perception, so it runs in-process only, not with --server");
-            }
-            let mut remote =
-                super::remote::Remote::connect(url, &dataset, config.vpr.top_k).await?;
-            remote.insert_references(&dataset).await?;
-            Backend::Remote(Box::new(remote))
-        }
-    };
-
+    let mut backend = Backend::open(&config, &args, &dataset).await?;
     let baseline = if args.no_baseline {
         None
     } else {
@@ -587,26 +550,9 @@ pub async fn run(config: Config, args: EvalArgs) -> anyhow::Result<()> {
     };
     for degradation in conditions {
         let condition = super::degrade::condition_name(degradation);
-        let samples = match &mut backend {
-            Backend::Local(local) => {
-                let (perception, database) = &**local;
-                database
-                    .condition(
-                        &config,
-                        perception,
-                        &dataset,
-                        degradation,
-                        &methods,
-                        &selection,
-                    )
-                    .await?
-            }
-            Backend::Remote(remote) => {
-                remote
-                    .condition(&dataset, degradation, &methods, &selection)
-                    .await?
-            }
-        };
+        let samples = backend
+            .condition(&config, &dataset, degradation, &methods, &selection)
+            .await?;
         let mut results: Vec<MethodResult> = methods
             .iter()
             .zip(samples)
@@ -632,20 +578,98 @@ pub async fn run(config: Config, args: EvalArgs) -> anyhow::Result<()> {
         let erased = remote.clean_up().await?;
         eprintln!("humem eval: removed the run's {erased} keyframes from the server");
     }
-
     print_table(&report);
+    write_outputs(&report, &args)
+}
+
+/// The methods compared: the ablation's five, or the one asked for.
+fn methods(args: &EvalArgs) -> anyhow::Result<Vec<(&'static str, Layers)>> {
+    if args.ablation {
+        ["scal", "scal+osrl", "scal+ogtl", "full-no-c", "full"]
+            .iter()
+            .map(|l| parse_layers(l))
+            .collect()
+    } else {
+        Ok(vec![parse_layers(&args.layers)?])
+    }
+}
+
+/// Where the queries are ranked: in this process, or by a running service.
+enum Backend {
+    Local(Box<(Perception, LocalDatabase)>),
+    Remote(Box<super::remote::Remote>),
+}
+
+impl Backend {
+    /// Loads the models and the references here, or inserts the references
+    /// into the service at `--server`.
+    async fn open(config: &Config, args: &EvalArgs, dataset: &Dataset) -> anyhow::Result<Backend> {
+        match &args.server {
+            None => {
+                let perception = Perception::load(&config.perception, config.store.scene_top_k)
+                    .context("loading the perception models (run scripts/setup-models.sh)")?;
+                let annotations = match args.objects {
+                    ObjectSource::Models => None,
+                    ObjectSource::Annotations => Some(Catalog::find(&args.dataset)?),
+                };
+                let database =
+                    LocalDatabase::build(&perception, dataset, annotations, args.grey).await?;
+                Ok(Backend::Local(Box::new((perception, database))))
+            }
+            Some(url) => {
+                if args.grey {
+                    anyhow::bail!("--grey runs in-process only, not with --server");
+                }
+                if args.objects == ObjectSource::Annotations {
+                    anyhow::bail!("--objects annotations replaces perception, so it runs in-process only, not with --server");
+                }
+                let mut remote =
+                    super::remote::Remote::connect(url, dataset, config.vpr.top_k).await?;
+                remote.insert_references(dataset).await?;
+                Ok(Backend::Remote(Box::new(remote)))
+            }
+        }
+    }
+
+    /// The selected queries of one condition, ranked with every method.
+    async fn condition(
+        &mut self,
+        config: &Config,
+        dataset: &Dataset,
+        degradation: Option<&Degradation>,
+        methods: &[(&'static str, Layers)],
+        selection: &Selection,
+    ) -> anyhow::Result<Vec<Samples>> {
+        match self {
+            Backend::Local(local) => {
+                let (perception, database) = &**local;
+                database
+                    .condition(config, perception, dataset, degradation, methods, selection)
+                    .await
+            }
+            Backend::Remote(remote) => {
+                remote
+                    .condition(dataset, degradation, methods, selection)
+                    .await
+            }
+        }
+    }
+}
+
+/// Writes `--json` and the `--report` folder (summary, results, charts).
+fn write_outputs(report: &EvalReport, args: &EvalArgs) -> anyhow::Result<()> {
     if let Some(path) = &args.json {
-        std::fs::write(path, serde_json::to_string_pretty(&report)?)
+        std::fs::write(path, serde_json::to_string_pretty(report)?)
             .with_context(|| format!("writing {}", path.display()))?;
     }
     if let Some(dir) = &args.report {
         std::fs::create_dir_all(dir)?;
-        std::fs::write(dir.join("summary.md"), markdown(&report))?;
+        std::fs::write(dir.join("summary.md"), markdown(report))?;
         std::fs::write(
             dir.join("results.json"),
-            serde_json::to_string_pretty(&report)?,
+            serde_json::to_string_pretty(report)?,
         )?;
-        let charts = super::plots::write_all(&report, dir)?;
+        let charts = super::plots::write_all(report, dir)?;
         eprintln!(
             "humem eval: report in {} (summary.md, results.json, {})",
             dir.display(),

@@ -13,8 +13,8 @@ use parking_lot::RwLock;
 use tokio::sync::{mpsc, oneshot};
 
 use super::codec::{self, decode_record, encode_key, encode_record};
-use super::{Index, Mutation, MutationOutcome, PoseUpdate, StoreError, META_DIM};
-use humem_core::keyframe::{KeyframeKey, Pose, SemanticKeyframe};
+use super::{Index, MapKey, Mutation, MutationOutcome, PoseUpdate, StoreError, META_DIM};
+use humem_core::keyframe::{KeyframeKey, Pose, SemanticKeyframe, SessionKey};
 use humem_core::observe::SharedObserver;
 
 /// Most changes committed by one flush.
@@ -83,6 +83,14 @@ pub(super) fn spawn(
         capacity,
         observer,
     }
+}
+
+/// One mutation's writes and outcome, gathered before its batch is applied.
+#[derive(Default)]
+struct Staged {
+    batch: sled::Batch,
+    outcome: MutationOutcome,
+    changes: Vec<IndexChange>,
 }
 
 /// A change to the index, made visible after the flush.
@@ -159,115 +167,158 @@ impl Writer {
 
     /// Writes one change to sled (not yet flushed) and records what the
     /// index must do once it is. A change that fails writes nothing.
+    /// Stages one mutation: checks it, applies its writes to sled as one
+    /// batch and adds its index changes to `changes` (made visible after
+    /// the group's flush).
     fn stage(
         &mut self,
         mutation: Mutation,
         changes: &mut Vec<IndexChange>,
     ) -> Result<MutationOutcome, StoreError> {
-        let tree = &self.trees.keyframes;
-        let mut batch = sled::Batch::default();
-        let mut outcome = MutationOutcome::default();
-        let mut staged = Vec::new();
+        let mut staged = Staged::default();
         match mutation {
-            Mutation::Insert(keyframes) => {
-                let dim = if self.dim == 0 {
-                    keyframes.first().map_or(0, |k| k.features.descriptor.len())
-                } else {
-                    self.dim
-                };
-                for kf in &keyframes {
-                    let found = kf.features.descriptor.len();
-                    if found != dim {
-                        return Err(StoreError::DimensionMismatch {
-                            expected: dim,
-                            found,
-                        });
-                    }
-                }
-                if self.dim == 0 && dim != 0 {
-                    self.trees
-                        .meta
-                        .insert(META_DIM, &(dim as u32).to_be_bytes())?;
-                    self.dim = dim;
-                }
-                for kf in keyframes {
-                    let key = encode_key(&kf.key);
-                    if tree.contains_key(&key)? {
-                        outcome.replaced += 1;
-                    }
-                    batch.insert(key, encode_record(&kf));
-                    staged.push(IndexChange::Upsert(kf));
-                }
-            }
+            Mutation::Insert(keyframes) => self.stage_insert(keyframes, &mut staged)?,
             Mutation::Erase {
                 session,
                 keyframe_ids,
-            } => {
-                for keyframe_id in keyframe_ids {
-                    let key = KeyframeKey {
-                        robot_id: session.robot_id.clone(),
-                        session_id: session.session_id.clone(),
-                        keyframe_id,
-                    };
-                    let bytes = encode_key(&key);
-                    if tree.contains_key(&bytes)? {
-                        batch.remove(bytes);
-                        outcome.affected += 1;
-                        staged.push(IndexChange::Remove(key));
-                    }
-                }
-            }
-            Mutation::ResetSession(session) => {
-                for item in tree.scan_prefix(codec::session_prefix(&session)).keys() {
-                    let bytes = item?;
-                    let key = corrupt_key(&bytes)?;
-                    batch.remove(bytes);
-                    outcome.affected += 1;
-                    staged.push(IndexChange::Remove(key));
-                }
-            }
-            Mutation::ResetMap(map) => {
-                for item in tree.scan_prefix(codec::session_prefix(&map.session)) {
-                    let (bytes, value) = item?;
-                    let record = decode(&bytes, &value)?;
-                    if record.map_id == map.map_id {
-                        batch.remove(bytes);
-                        outcome.affected += 1;
-                        staged.push(IndexChange::Remove(record.key));
-                    }
-                }
-            }
+            } => self.stage_erase(&session, keyframe_ids, &mut staged)?,
+            Mutation::ResetSession(session) => self.stage_reset_session(&session, &mut staged)?,
+            Mutation::ResetMap(map) => self.stage_reset_map(&map, &mut staged)?,
             Mutation::UpdatePoses { session, updates } => {
-                for PoseUpdate {
-                    keyframe_id,
-                    pose,
-                    map_id,
-                } in updates
-                {
-                    let key = KeyframeKey {
-                        robot_id: session.robot_id.clone(),
-                        session_id: session.session_id.clone(),
-                        keyframe_id,
-                    };
-                    let bytes = encode_key(&key);
-                    let Some(value) = tree.get(&bytes)? else {
-                        outcome.missing.push(keyframe_id);
-                        continue;
-                    };
-                    let mut record = decode(&bytes, &value)?;
-                    record.pose = pose;
-                    if let Some(map_id) = map_id {
-                        record.map_id = map_id;
-                    }
-                    batch.insert(bytes, encode_record(&record));
-                    outcome.affected += 1;
-                    staged.push(IndexChange::Move(key, pose, map_id));
-                }
+                self.stage_pose_updates(&session, updates, &mut staged)?
             }
         }
-        tree.apply_batch(batch)?;
-        changes.extend(staged);
-        Ok(outcome)
+        self.trees.keyframes.apply_batch(staged.batch)?;
+        changes.extend(staged.changes);
+        Ok(staged.outcome)
+    }
+
+    /// Inserts or replaces keyframes; the first keyframe of an empty store
+    /// sets its descriptor length.
+    fn stage_insert(
+        &mut self,
+        keyframes: Vec<SemanticKeyframe>,
+        staged: &mut Staged,
+    ) -> Result<(), StoreError> {
+        let dim = if self.dim == 0 {
+            keyframes.first().map_or(0, |k| k.features.descriptor.len())
+        } else {
+            self.dim
+        };
+        for kf in &keyframes {
+            let found = kf.features.descriptor.len();
+            if found != dim {
+                return Err(StoreError::DimensionMismatch {
+                    expected: dim,
+                    found,
+                });
+            }
+        }
+        if self.dim == 0 && dim != 0 {
+            self.trees
+                .meta
+                .insert(META_DIM, &(dim as u32).to_be_bytes())?;
+            self.dim = dim;
+        }
+        for kf in keyframes {
+            let key = encode_key(&kf.key);
+            if self.trees.keyframes.contains_key(&key)? {
+                staged.outcome.replaced += 1;
+            }
+            staged.batch.insert(key, encode_record(&kf));
+            staged.changes.push(IndexChange::Upsert(kf));
+        }
+        Ok(())
+    }
+
+    /// Removes the listed keyframes of a session that are stored.
+    fn stage_erase(
+        &self,
+        session: &SessionKey,
+        keyframe_ids: Vec<u64>,
+        staged: &mut Staged,
+    ) -> Result<(), StoreError> {
+        for keyframe_id in keyframe_ids {
+            let key = session.keyframe(keyframe_id);
+            let bytes = encode_key(&key);
+            if self.trees.keyframes.contains_key(&bytes)? {
+                staged.batch.remove(bytes);
+                staged.outcome.affected += 1;
+                staged.changes.push(IndexChange::Remove(key));
+            }
+        }
+        Ok(())
+    }
+
+    /// Removes every keyframe of a session.
+    fn stage_reset_session(
+        &self,
+        session: &SessionKey,
+        staged: &mut Staged,
+    ) -> Result<(), StoreError> {
+        for item in self
+            .trees
+            .keyframes
+            .scan_prefix(codec::session_prefix(session))
+            .keys()
+        {
+            let bytes = item?;
+            let key = corrupt_key(&bytes)?;
+            staged.batch.remove(bytes);
+            staged.outcome.affected += 1;
+            staged.changes.push(IndexChange::Remove(key));
+        }
+        Ok(())
+    }
+
+    /// Removes every keyframe of one map of a session.
+    fn stage_reset_map(&self, map: &MapKey, staged: &mut Staged) -> Result<(), StoreError> {
+        for item in self
+            .trees
+            .keyframes
+            .scan_prefix(codec::session_prefix(&map.session))
+        {
+            let (bytes, value) = item?;
+            let record = decode(&bytes, &value)?;
+            if record.map_id == map.map_id {
+                staged.batch.remove(bytes);
+                staged.outcome.affected += 1;
+                staged.changes.push(IndexChange::Remove(record.key));
+            }
+        }
+        Ok(())
+    }
+
+    /// Moves stored keyframes to new poses (and maps); ids not stored are
+    /// reported missing.
+    fn stage_pose_updates(
+        &self,
+        session: &SessionKey,
+        updates: Vec<PoseUpdate>,
+        staged: &mut Staged,
+    ) -> Result<(), StoreError> {
+        for PoseUpdate {
+            keyframe_id,
+            pose,
+            map_id,
+        } in updates
+        {
+            let key = session.keyframe(keyframe_id);
+            let bytes = encode_key(&key);
+            let Some(value) = self.trees.keyframes.get(&bytes)? else {
+                staged.outcome.missing.push(keyframe_id);
+                continue;
+            };
+            let mut record = decode(&bytes, &value)?;
+            record.pose = pose;
+            if let Some(map_id) = map_id {
+                record.map_id = map_id;
+            }
+            staged.batch.insert(bytes, encode_record(&record));
+            staged.outcome.affected += 1;
+            staged.changes.push(IndexChange::Move(key, pose, map_id));
+        }
+        Ok(())
     }
 }
 

@@ -474,6 +474,60 @@ fn enumeration<E: TryFrom<i32>>(field: &str, value: i32) -> Result<E> {
     E::try_from(value).map_err(|_| invalid(field, format!("unknown value {value}")))
 }
 
+/// The query's scope; robot ids and maps are listed only with
+/// `SCOPE_LISTED`.
+fn scope(r: &proto::QueryRequest) -> Result<Scope> {
+    let scope = match enumeration::<proto::Scope>("scope", r.scope)? {
+        proto::Scope::Unspecified | proto::Scope::AllMaps => Scope::AllMaps,
+        proto::Scope::SameMap => Scope::SameMap,
+        proto::Scope::OtherMaps => Scope::OtherMaps,
+        proto::Scope::Listed => listed(r)?,
+    };
+    if !r.robot_ids.is_empty() && !matches!(scope, Scope::Listed { .. }) {
+        return Err(invalid("robot_ids", "only meaningful with SCOPE_LISTED"));
+    }
+    if !r.maps.is_empty() && !matches!(scope, Scope::Listed { .. }) {
+        return Err(invalid("maps", "only meaningful with SCOPE_LISTED"));
+    }
+    Ok(scope)
+}
+
+/// A `SCOPE_LISTED` scope: the robots and maps listed, each checked.
+fn listed(r: &proto::QueryRequest) -> Result<Scope> {
+    if r.robot_ids.is_empty() && r.maps.is_empty() {
+        return Err(invalid("scope", "SCOPE_LISTED needs robot_ids or maps"));
+    }
+    if r.robot_ids.len() + r.maps.len() > MAX_LISTED {
+        return Err(invalid(
+            "maps",
+            format!("more than {MAX_LISTED} entries listed"),
+        ));
+    }
+    let robot_ids = r
+        .robot_ids
+        .iter()
+        .enumerate()
+        .map(|(i, id)| robot_id(&format!("robot_ids[{i}]"), id))
+        .collect::<Result<_>>()?;
+    let maps = r
+        .maps
+        .iter()
+        .enumerate()
+        .map(|(i, m)| {
+            Ok(MapRef {
+                robot_id: robot_id(&format!("maps[{i}].robot_id"), &m.robot_id)?,
+                session_id: m
+                    .session_id
+                    .as_deref()
+                    .map(|s| id_text(&format!("maps[{i}].session_id"), s))
+                    .transpose()?,
+                map_id: m.map_id,
+            })
+        })
+        .collect::<Result<_>>()?;
+    Ok(Scope::Listed { robot_ids, maps })
+}
+
 /// A query.
 pub fn query(mut r: proto::QueryRequest, limits: &Limits) -> Result<QuerySpec> {
     let session = session("", &r.robot_id, &r.session_id)?;
@@ -500,51 +554,7 @@ pub fn query(mut r: proto::QueryRequest, limits: &Limits) -> Result<QuerySpec> {
             ),
         ));
     }
-    let scope = match enumeration::<proto::Scope>("scope", r.scope)? {
-        proto::Scope::Unspecified | proto::Scope::AllMaps => Scope::AllMaps,
-        proto::Scope::SameMap => Scope::SameMap,
-        proto::Scope::OtherMaps => Scope::OtherMaps,
-        proto::Scope::Listed => {
-            if r.robot_ids.is_empty() && r.maps.is_empty() {
-                return Err(invalid("scope", "SCOPE_LISTED needs robot_ids or maps"));
-            }
-            if r.robot_ids.len() + r.maps.len() > MAX_LISTED {
-                return Err(invalid(
-                    "maps",
-                    format!("more than {MAX_LISTED} entries listed"),
-                ));
-            }
-            let robot_ids = r
-                .robot_ids
-                .iter()
-                .enumerate()
-                .map(|(i, id)| robot_id(&format!("robot_ids[{i}]"), id))
-                .collect::<Result<_>>()?;
-            let maps = r
-                .maps
-                .iter()
-                .enumerate()
-                .map(|(i, m)| {
-                    Ok(MapRef {
-                        robot_id: robot_id(&format!("maps[{i}].robot_id"), &m.robot_id)?,
-                        session_id: m
-                            .session_id
-                            .as_deref()
-                            .map(|s| id_text(&format!("maps[{i}].session_id"), s))
-                            .transpose()?,
-                        map_id: m.map_id,
-                    })
-                })
-                .collect::<Result<_>>()?;
-            Scope::Listed { robot_ids, maps }
-        }
-    };
-    if !r.robot_ids.is_empty() && !matches!(scope, Scope::Listed { .. }) {
-        return Err(invalid("robot_ids", "only meaningful with SCOPE_LISTED"));
-    }
-    if !r.maps.is_empty() && !matches!(scope, Scope::Listed { .. }) {
-        return Err(invalid("maps", "only meaningful with SCOPE_LISTED"));
-    }
+    let scope = scope(&r)?;
     let layers = match enumeration::<proto::Layers>("layers", r.layers)? {
         proto::Layers::Unspecified | proto::Layers::Full => Layers::FULL,
         proto::Layers::Scal => Layers::SCAL,

@@ -130,19 +130,66 @@ pub struct QueryOutcome {
     pub threshold: f32,
 }
 
-/// Runs a validated query against the index.
+/// Runs a validated query against the index: what the query shows, its
+/// context and temporal history, then ranking, selection and the evidence
+/// of each candidate.
 pub fn run(
     index: &Index,
     params: &VprParams,
     spec: &QuerySpec,
 ) -> Result<QueryOutcome, QueryError> {
-    let stored_row = spec.keyframe_id.and_then(|keyframe_id| {
-        index.row_of(&KeyframeKey {
-            robot_id: spec.session.robot_id.clone(),
-            session_id: spec.session.session_id.clone(),
-            keyframe_id,
-        })
-    });
+    let stored_row = spec
+        .keyframe_id
+        .and_then(|keyframe_id| index.row_of(&spec.session.keyframe(keyframe_id)));
+    let current = current_features(index, spec, stored_row)?;
+    let context = query_context(index, spec, stored_row)?;
+    let predecessor_rows = predecessor_rows(index, params, spec, stored_row);
+    let predecessors: Vec<Features> = predecessor_rows
+        .iter()
+        .map(|&row| index.keyframe(row).features)
+        .collect();
+    let mut history = vec![&current];
+    history.extend(predecessors.iter());
+
+    let eligible_count = Cell::new(0u64);
+    let eligible = |row: usize| {
+        let meta = index.meta(row);
+        let ok = vpr::is_eligible(
+            &context,
+            &CandidateMeta {
+                key: &meta.key,
+                frame_id: meta.frame_id,
+                map_id: meta.map_id,
+            },
+        );
+        eligible_count.set(eligible_count.get() + u64::from(ok));
+        ok
+    };
+    let query = QueryObservation { history };
+    let (ranked, timings) = vpr::rank_timed(params, spec.layers, &query, index, &eligible);
+    let candidates = vpr::select(ranked, spec.threshold, spec.top_n)
+        .into_iter()
+        .map(|r| candidate(index, &current, r))
+        .collect();
+    Ok(QueryOutcome {
+        candidates,
+        eligible: eligible_count.get(),
+        used_predecessors: predecessor_rows
+            .iter()
+            .map(|&row| index.meta(row).key.keyframe_id)
+            .collect(),
+        timings: timings.stages().to_vec(),
+        threshold: spec.threshold,
+    })
+}
+
+/// What the query shows: the features it sent, or else those of the stored
+/// keyframe it names; checked against the store's descriptor length.
+fn current_features(
+    index: &Index,
+    spec: &QuerySpec,
+    stored_row: Option<usize>,
+) -> Result<Features, QueryError> {
     let sent = match &spec.observation {
         Some(Observation::Features(features)) => Some(features),
         Some(Observation::Image(_, field)) => {
@@ -158,11 +205,9 @@ pub fn run(
         (Some(features), _) => features.clone(),
         (None, Some(row)) => index.keyframe(row).features,
         (None, None) => {
-            return Err(QueryError::NotStored(KeyframeKey {
-                robot_id: spec.session.robot_id.clone(),
-                session_id: spec.session.session_id.clone(),
-                keyframe_id: spec.keyframe_id.unwrap_or_default(),
-            }))
+            return Err(QueryError::NotStored(
+                spec.session.keyframe(spec.keyframe_id.unwrap_or_default()),
+            ))
         }
     };
     if index.dim() != 0 && current.descriptor.len() != index.dim() {
@@ -176,6 +221,16 @@ pub fn run(
         }
         .into());
     }
+    Ok(current)
+}
+
+/// Who asks and where, for eligibility: frame and map ids as sent, or else
+/// those of the stored keyframe the query names.
+fn query_context(
+    index: &Index,
+    spec: &QuerySpec,
+    stored_row: Option<usize>,
+) -> Result<QueryContext, QueryError> {
     let stored_meta = stored_row.map(|row| index.meta(row));
     let frame_id = spec
         .frame_id
@@ -195,11 +250,27 @@ pub fn run(
         }
         (_, map_id) => map_id.unwrap_or_default(),
     };
+    Ok(QueryContext {
+        session: spec.session.clone(),
+        keyframe_id: spec.keyframe_id,
+        frame_id,
+        map_id,
+        min_frame_gap: spec.min_frame_gap,
+        scope: spec.scope.clone(),
+    })
+}
 
-    // Temporal context: the predecessors the client names, or else the
-    // stored predecessors of the query keyframe.
+/// Temporal context: the rows of the predecessors the client names, or else
+/// the stored predecessors of the query keyframe, most recent first, as many
+/// as the temporal weights use.
+fn predecessor_rows(
+    index: &Index,
+    params: &VprParams,
+    spec: &QuerySpec,
+    stored_row: Option<usize>,
+) -> Vec<usize> {
     let depth = params.alpha.len().saturating_sub(1);
-    let predecessor_rows: Vec<usize> = if spec.predecessor_ids.is_empty() {
+    if spec.predecessor_ids.is_empty() {
         std::iter::successors(stored_row, |&row| index.predecessor(row))
             .skip(1)
             .take(depth)
@@ -207,137 +278,86 @@ pub fn run(
     } else {
         spec.predecessor_ids
             .iter()
-            .filter_map(|&keyframe_id| {
-                index.row_of(&KeyframeKey {
-                    robot_id: spec.session.robot_id.clone(),
-                    session_id: spec.session.session_id.clone(),
-                    keyframe_id,
-                })
-            })
+            .filter_map(|&keyframe_id| index.row_of(&spec.session.keyframe(keyframe_id)))
             .take(depth)
             .collect()
-    };
-    let predecessors: Vec<Features> = predecessor_rows
+    }
+}
+
+/// A selected candidate with its evidence spelled out: the classes and
+/// strings behind every matched, conflicting or missing object.
+fn candidate(index: &Index, current: &Features, r: vpr::RankedCandidate) -> Candidate {
+    let meta = index.meta(r.row);
+    let cand_objects = index.objects(r.row);
+    let text_conflicts = r
+        .contradiction
+        .conflicts
         .iter()
-        .map(|&row| index.keyframe(row).features)
-        .collect();
-    let mut history = vec![&current];
-    history.extend(predecessors.iter());
-
-    let context = QueryContext {
-        session: spec.session.clone(),
-        keyframe_id: spec.keyframe_id,
-        frame_id,
-        map_id,
-        min_frame_gap: spec.min_frame_gap,
-        scope: spec.scope.clone(),
-    };
-    let eligible_count = Cell::new(0u64);
-    let eligible = |row: usize| {
-        let meta = index.meta(row);
-        let ok = vpr::is_eligible(
-            &context,
-            &CandidateMeta {
-                key: &meta.key,
-                frame_id: meta.frame_id,
-                map_id: meta.map_id,
-            },
-        );
-        eligible_count.set(eligible_count.get() + u64::from(ok));
-        ok
-    };
-
-    let query = QueryObservation { history };
-    let (ranked, timings) = vpr::rank_timed(params, spec.layers, &query, index, &eligible);
-    let selected = vpr::select(ranked, spec.threshold, spec.top_n);
-
-    let candidates = selected
-        .into_iter()
-        .map(|r| {
-            let meta = index.meta(r.row);
-            let cand_objects = index.objects(r.row);
-            let text_conflicts = r
-                .contradiction
-                .conflicts
-                .iter()
-                .map(|&conflict| ConflictPair {
-                    query_text: current.objects[conflict.query_object].texts[conflict.query_text]
-                        .text
-                        .clone(),
-                    candidate_text: cand_objects[conflict.candidate_object].texts
-                        [conflict.candidate_text]
-                        .text
-                        .clone(),
-                    conflict,
-                })
-                .collect();
-            let missing_objects = r
-                .contradiction
-                .missing
-                .iter()
-                .map(|&missing| MissingPair {
-                    class_name: if missing.in_query {
-                        &current.objects[missing.object]
-                    } else {
-                        &cand_objects[missing.object]
-                    }
-                    .class_name
-                    .clone(),
-                    missing,
-                })
-                .collect();
-            Candidate {
-                key: meta.key.clone(),
-                frame_id: meta.frame_id,
-                timestamp: meta.timestamp,
-                map_id: meta.map_id,
-                pose: meta.pose,
-                score: r.score,
-                raw_score: r.raw_score,
-                scene_confidence: r.scene_confidence,
-                null: r.null,
-                scene: r.scene,
-                object_score: r.objects.score,
-                text_score: r.text.score,
-                text_distinctiveness: r.text.evidence_weight,
-                corroboration: r.corroboration,
-                object_matches: r
-                    .objects
-                    .matches
-                    .into_iter()
-                    .map(|m| ObjectPair {
-                        class_name: current.objects[m.query_object].class_name.clone(),
-                        matched: m,
-                    })
-                    .collect(),
-                text_matches: r
-                    .text
-                    .matches
-                    .into_iter()
-                    .map(|m| TextPair {
-                        query_text: current.objects[m.query_object].texts[m.query_text]
-                            .text
-                            .clone(),
-                        candidate_text: cand_objects[m.candidate_object].texts[m.candidate_text]
-                            .text
-                            .clone(),
-                        matched: m,
-                    })
-                    .collect(),
-                contradiction: r.contradiction,
-                text_conflicts,
-                missing_objects,
-            }
+        .map(|&conflict| ConflictPair {
+            query_text: current.objects[conflict.query_object].texts[conflict.query_text]
+                .text
+                .clone(),
+            candidate_text: cand_objects[conflict.candidate_object].texts[conflict.candidate_text]
+                .text
+                .clone(),
+            conflict,
         })
         .collect();
-    Ok(QueryOutcome {
-        candidates,
-        eligible: eligible_count.get(),
-        used_predecessors: predecessor_rows
-            .iter()
-            .map(|&row| index.meta(row).key.keyframe_id)
+    let missing_objects = r
+        .contradiction
+        .missing
+        .iter()
+        .map(|&missing| MissingPair {
+            class_name: if missing.in_query {
+                &current.objects[missing.object]
+            } else {
+                &cand_objects[missing.object]
+            }
+            .class_name
+            .clone(),
+            missing,
+        })
+        .collect();
+    Candidate {
+        key: meta.key.clone(),
+        frame_id: meta.frame_id,
+        timestamp: meta.timestamp,
+        map_id: meta.map_id,
+        pose: meta.pose,
+        score: r.score,
+        raw_score: r.raw_score,
+        scene_confidence: r.scene_confidence,
+        null: r.null,
+        scene: r.scene,
+        object_score: r.objects.score,
+        text_score: r.text.score,
+        text_distinctiveness: r.text.evidence_weight,
+        corroboration: r.corroboration,
+        object_matches: r
+            .objects
+            .matches
+            .into_iter()
+            .map(|m| ObjectPair {
+                class_name: current.objects[m.query_object].class_name.clone(),
+                matched: m,
+            })
             .collect(),
-        timings: timings.stages().to_vec(),
-        threshold: spec.threshold,
-    })
+        text_matches: r
+            .text
+            .matches
+            .into_iter()
+            .map(|m| TextPair {
+                query_text: current.objects[m.query_object].texts[m.query_text]
+                    .text
+                    .clone(),
+                candidate_text: cand_objects[m.candidate_object].texts[m.candidate_text]
+                    .text
+                    .clone(),
+                matched: m,
+            })
+            .collect(),
+        contradiction: r.contradiction,
+        text_conflicts,
+        missing_objects,
+    }
 }
