@@ -1,10 +1,14 @@
 //! `humem eval`: recall and latency on a data set, the paper's way.
 //!
 //! Everything runs in this process through the same code the service runs:
-//! the perception models make features of every image, the references go
-//! into a real in-memory index, and each selected query is ranked by
-//! HuMem-VPR with the layers of each configuration (ablations are
-//! configurations, not code). Queries are the eligible ones, at most
+//! the perception models make features of every image, the references and
+//! the query frames go into a real in-memory index as a SLAM client would
+//! store them, and each selected query is answered by the service's own
+//! query path (`humem_server::pipeline::query::run`: eligibility, scope,
+//! temporal context, HuMem-VPR ranking) with the layers of each
+//! configuration (ablations are configurations, not code). The end-to-end
+//! test `eval_through_the_service_ranks_as_the_library_does` checks that a
+//! running service gives the same numbers. Queries are the eligible ones, at most
 //! `--max-queries` at evenly spaced indices; queries without a valid match
 //! (a loop's first pass, a query nothing matches) are chosen the same way
 //! and scored for precision only, since that is where false alarms come
@@ -28,11 +32,13 @@ use super::metrics::{self, LatencyStats, Retrieval};
 use super::precision::{self, OperatingPoint, Precision, ScoredQuery};
 use super::truth::{Kind, PoseRule};
 use humem_core::index::Index;
-use humem_core::keyframe::{Features, KeyframeKey, Pose, SemanticKeyframe};
-use humem_core::vpr::{self, Layers, QueryObservation};
+use humem_core::keyframe::{Features, KeyframeKey, Pose, SemanticKeyframe, SessionKey};
+use humem_core::vpr::{Layers, Scope};
 use humem_perception::image::{decode as image_decode, luma, EncodedImage, Encoding};
 use humem_perception::{ImageInput, Perception};
 use humem_server::config::Config;
+use humem_server::pipeline::query;
+use humem_server::pipeline::request::{QueryKind, QuerySpec};
 
 /// Options of `humem eval`.
 #[derive(Debug, Clone, clap::Args)]
@@ -308,16 +314,37 @@ async fn perceive_all(
     Ok(out)
 }
 
-/// The in-process database: every reference, clean, in a real index.
+/// Robot of the references in the in-process index.
+const REFERENCE_ROBOT: &str = "reference";
+/// Robot of the query frames stored for their temporal context.
+const QUERY_ROBOT: &str = "query";
+
+/// The in-process database: every reference, perceived clean once. Each
+/// condition ranks through the service's own query path
+/// (`pipeline::query::run`) over a real index, filled the way a SLAM
+/// client fills the service (see [`LocalDatabase::condition`]).
 struct LocalDatabase {
-    index: Index,
-    /// Index row → reference index.
-    reference_of: Vec<usize>,
     references: Vec<Perceived>,
     /// Ground-truth objects in place of the detector's, if asked.
     annotations: Option<Catalog>,
     /// Images are sent as grey pixels.
     grey: bool,
+}
+
+/// Keyframe `index` of `robot`'s one session, as the index stores it.
+fn stored(robot: &str, index: usize, features: &Features) -> SemanticKeyframe {
+    SemanticKeyframe {
+        key: KeyframeKey {
+            robot_id: robot.into(),
+            session_id: String::new(),
+            keyframe_id: index as u64,
+        },
+        frame_id: index as u64,
+        timestamp: index as f64,
+        map_id: 0,
+        pose: Pose::default(),
+        features: features.clone(),
+    }
 }
 
 impl LocalDatabase {
@@ -336,30 +363,7 @@ impl LocalDatabase {
             "references",
         )
         .await?;
-        let dim = references
-            .first()
-            .map_or(0, |r| r.features.descriptor.len());
-        let mut index = Index::new(dim);
-        for (i, r) in references.iter().enumerate() {
-            index.upsert(SemanticKeyframe {
-                key: KeyframeKey {
-                    robot_id: "reference".into(),
-                    session_id: String::new(),
-                    keyframe_id: i as u64,
-                },
-                frame_id: i as u64,
-                timestamp: i as f64,
-                map_id: 0,
-                pose: Pose::default(),
-                features: r.features.clone(),
-            });
-        }
-        let reference_of = (0..index.len())
-            .map(|row| index.meta(row).key.keyframe_id as usize)
-            .collect();
         Ok(LocalDatabase {
-            index,
-            reference_of,
             references,
             annotations,
             grey,
@@ -367,6 +371,14 @@ impl LocalDatabase {
     }
 
     /// Ranks the selected queries of one condition with every method.
+    ///
+    /// The index holds the references a query may match: all of them for
+    /// `pairs`; for `loop`, those at least the minimum frame gap before the
+    /// query, added as the queries advance, as in a drive. Each selected
+    /// query and its two predecessors are stored in a query session (their
+    /// temporal context), and the query asks about its stored keyframe,
+    /// scoped to the references, with no threshold and the whole SCAL top K
+    /// (so MRR sees ranks beyond 5), as `--server` asks the service.
     #[allow(clippy::too_many_arguments)]
     async fn condition(
         &self,
@@ -395,37 +407,62 @@ impl LocalDatabase {
                 &fresh
             }
         };
+        // References a query may match: for a loop, those of index ≤ q − gap.
+        let admitted = |q: usize| match dataset.kind {
+            Kind::Loop => (q + 1).saturating_sub(dataset.min_frame_gap),
+            Kind::Pairs => self.references.len(),
+        };
+        let dim = self
+            .references
+            .first()
+            .map_or(0, |r| r.features.descriptor.len());
         let mut out = Vec::new();
         for &(_, layers) in methods {
             let mut samples = Samples::default();
+            let mut index = Index::new(dim);
+            let mut next_reference = 0;
             for q in selection.all() {
-                let history: Vec<&Features> = (0..3)
-                    .filter_map(|j| q.checked_sub(j))
-                    .map(|i| &queries[i].features)
-                    .collect();
-                let gap = dataset.min_frame_gap;
-                let eligible = |row: usize| match dataset.kind {
-                    Kind::Loop => self.reference_of[row] + gap <= q,
-                    Kind::Pairs => true,
+                while next_reference < admitted(q).min(self.references.len()) {
+                    let features = &self.references[next_reference].features;
+                    index.upsert(stored(REFERENCE_ROBOT, next_reference, features));
+                    next_reference += 1;
+                }
+                for i in (0..3).rev().filter_map(|j| q.checked_sub(j)) {
+                    index.upsert(stored(QUERY_ROBOT, i, &queries[i].features));
+                }
+                let spec = QuerySpec {
+                    session: SessionKey {
+                        robot_id: QUERY_ROBOT.into(),
+                        session_id: String::new(),
+                    },
+                    map_id: None,
+                    frame_id: None,
+                    keyframe_id: Some(q as u64),
+                    observation: None,
+                    predecessor_ids: Vec::new(),
+                    scope: Scope::Listed {
+                        robot_ids: vec![REFERENCE_ROBOT.into()],
+                        maps: Vec::new(),
+                    },
+                    min_frame_gap: 0,
+                    top_n: config.vpr.top_k,
+                    threshold: 0.0,
+                    layers,
+                    kind: QueryKind::LoopClosure,
                 };
                 let started = Instant::now();
-                let (ranked, times) = vpr::rank_timed(
-                    &config.vpr,
-                    layers,
-                    &QueryObservation { history },
-                    &self.index,
-                    &eligible,
-                );
+                let outcome = query::run(&index, &config.vpr, &spec)
+                    .with_context(|| format!("ranking query {q}"))?;
                 let rank_took = started.elapsed();
-                // The whole SCAL top K, so MRR sees ranks beyond 5.
-                let top: Vec<(usize, f32)> = ranked
+                let top: Vec<(usize, f32)> = outcome
+                    .candidates
                     .iter()
-                    .map(|r| (self.reference_of[r.row], r.score))
+                    .map(|c| (c.key.keyframe_id as usize, c.score))
                     .collect();
                 samples.record(&top, dataset.matches.get(&q));
                 if selection.is_timed(q) {
                     samples.latencies.push(queries[q].took + rank_took);
-                    for (stage, took) in queries[q].stages.iter().chain(times.stages().iter()) {
+                    for (stage, took) in queries[q].stages.iter().chain(&outcome.timings) {
                         if *stage != "decode" {
                             *samples.stage_ms.entry(stage.to_string()).or_default() +=
                                 took.as_secs_f64() * 1e3;
