@@ -11,7 +11,7 @@ use std::time::Duration;
 
 use super::request::{InvalidField, Observation, QuerySpec};
 use humem_core::index::Index;
-use humem_core::keyframe::{Features, KeyframeKey, Pose};
+use humem_core::keyframe::{Features, KeyframeKey, ObjectObservation, Pose};
 use humem_core::vpr::{
     self, CandidateMeta, Contradiction, KeyframeMemory, MissingObject, NullModel, ObjectMatch,
     QueryContext, QueryObservation, ScalHit, Scope, TextConflict, TextMatch, VprParams,
@@ -294,12 +294,12 @@ fn candidate(index: &Index, current: &Features, r: vpr::RankedCandidate) -> Cand
         .conflicts
         .iter()
         .map(|&conflict| ConflictPair {
-            query_text: current.objects[conflict.query_object].texts[conflict.query_text]
-                .text
-                .clone(),
-            candidate_text: cand_objects[conflict.candidate_object].texts[conflict.candidate_text]
-                .text
-                .clone(),
+            query_text: text_of(&current.objects, conflict.query_object, conflict.query_text),
+            candidate_text: text_of(
+                cand_objects,
+                conflict.candidate_object,
+                conflict.candidate_text,
+            ),
             conflict,
         })
         .collect();
@@ -347,12 +347,8 @@ fn candidate(index: &Index, current: &Features, r: vpr::RankedCandidate) -> Cand
             .matches
             .into_iter()
             .map(|m| TextPair {
-                query_text: current.objects[m.query_object].texts[m.query_text]
-                    .text
-                    .clone(),
-                candidate_text: cand_objects[m.candidate_object].texts[m.candidate_text]
-                    .text
-                    .clone(),
+                query_text: text_of(&current.objects, m.query_object, m.query_text),
+                candidate_text: text_of(cand_objects, m.candidate_object, m.candidate_text),
                 matched: m,
             })
             .collect(),
@@ -360,4 +356,9 @@ fn candidate(index: &Index, current: &Features, r: vpr::RankedCandidate) -> Cand
         text_conflicts,
         missing_objects,
     }
+}
+
+/// String `text` of object `object`, as evidence names it.
+fn text_of(objects: &[ObjectObservation], object: usize, text: usize) -> String {
+    objects[object].texts[text].text.clone()
 }
