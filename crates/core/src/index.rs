@@ -16,7 +16,9 @@ use std::collections::{BTreeMap, HashMap, HashSet};
 use crate::keyframe::{
     KeyframeKey, ObjectObservation, Pose, SceneClass, SemanticKeyframe, SessionKey,
 };
+use crate::row_ids::{Eligibility, Interner, RowIds};
 use crate::vpr::appearance::AppearanceMatrix;
+use crate::vpr::eligibility::QueryContext;
 use crate::vpr::{self, DescriptorMatrix, KeyframeMemory};
 
 /// A map: (robot, session, map id).
@@ -46,9 +48,10 @@ pub struct RowMeta {
     pub scene: Vec<SceneClass>,
     /// Stable objects seen in the keyframe, with their text.
     pub objects: Vec<ObjectObservation>,
-    /// Row of the previous keyframe of the same track, if stored.
-    prev: Option<usize>,
 }
+
+/// `preds` entry of a row without a predecessor.
+const NO_ROW: u32 = u32::MAX;
 
 impl RowMeta {
     /// The map this keyframe belongs to.
@@ -67,6 +70,12 @@ pub struct Index {
     /// Appearance thumbnails, row-aligned with `matrix`.
     appearance: AppearanceMatrix,
     rows: Vec<RowMeta>,
+    /// The integers eligibility reads, row-aligned (see [`crate::row_ids`]).
+    ids: Vec<RowIds>,
+    /// Row of each row's predecessor in its track, or [`NO_ROW`]; a table
+    /// of its own because the scan follows it for every row.
+    preds: Vec<u32>,
+    interner: Interner,
     by_key: HashMap<KeyframeKey, usize>,
     /// Keyframe id → row, per map: the temporal tracks.
     tracks: HashMap<MapKey, BTreeMap<u64, usize>>,
@@ -81,6 +90,9 @@ impl Index {
             matrix: DescriptorMatrix::new(dim),
             appearance: AppearanceMatrix::default(),
             rows: Vec::new(),
+            ids: Vec::new(),
+            preds: Vec::new(),
+            interner: Interner::default(),
             by_key: HashMap::new(),
             tracks: HashMap::new(),
             text_df: HashMap::new(),
@@ -112,6 +124,15 @@ impl Index {
     /// range.
     pub fn meta(&self, row: usize) -> &RowMeta {
         &self.rows[row]
+    }
+
+    /// The eligibility rule of `context`, compiled for this index's rows:
+    /// `test(row)` agrees with [`vpr::is_eligible`] on the row's keyframe.
+    pub fn eligibility(&self, context: &QueryContext) -> RowEligibility<'_> {
+        RowEligibility {
+            rule: Eligibility::compile(context, &self.interner),
+            ids: &self.ids,
+        }
     }
 
     /// Global descriptor of a row, [`Index::dim`] values.
@@ -177,13 +198,26 @@ impl Index {
         if self.matrix.dim() == 0 && self.matrix.is_empty() {
             self.matrix = DescriptorMatrix::new(keyframe.features.descriptor.len());
         }
+        assert!(
+            self.rows.len() < NO_ROW as usize,
+            "at most 2³² − 1 keyframes"
+        );
         let row = self.matrix.push(&keyframe.features.descriptor);
         debug_assert_eq!(row, self.rows.len());
+        self.preds.push(NO_ROW);
         self.appearance.push(&keyframe.features.appearance);
         for text in distinct_texts(&keyframe.features.objects) {
             *self.text_df.entry(text).or_insert(0) += 1;
         }
         self.by_key.insert(keyframe.key.clone(), row);
+        let (robot, session) = self.interner.intern(&keyframe.key.session());
+        self.ids.push(RowIds {
+            robot,
+            session,
+            map_id: keyframe.map_id,
+            frame_id: keyframe.frame_id,
+            keyframe_id: keyframe.key.keyframe_id,
+        });
         self.rows.push(RowMeta {
             key: keyframe.key,
             frame_id: keyframe.frame_id,
@@ -192,7 +226,6 @@ impl Index {
             pose: keyframe.pose,
             scene: keyframe.features.scene,
             objects: keyframe.features.objects,
-            prev: None,
         });
         self.link(row);
         replaced
@@ -218,6 +251,8 @@ impl Index {
         self.matrix.swap_remove(row);
         self.appearance.swap_remove(row);
         self.rows.swap_remove(row);
+        self.ids.swap_remove(row);
+        self.preds.swap_remove(row);
         if row != last {
             let moved = &self.rows[row];
             self.by_key.insert(moved.key.clone(), row);
@@ -226,7 +261,7 @@ impl Index {
             let track = self.tracks.get_mut(&map).expect("moved row has a track");
             track.insert(id, row);
             if let Some((_, &next)) = track.range(id + 1..).next() {
-                self.rows[next].prev = Some(row);
+                self.set_prev(next, Some(row));
             }
         }
         true
@@ -243,6 +278,7 @@ impl Index {
             if map_id != self.rows[row].map_id {
                 self.unlink(row);
                 self.rows[row].map_id = map_id;
+                self.ids[row].map_id = map_id;
                 self.link(row);
             }
         }
@@ -258,9 +294,9 @@ impl Index {
         track.insert(id, row);
         let prev = track.range(..id).next_back().map(|(_, &r)| r);
         let next = track.range(id + 1..).next().map(|(_, &r)| r);
-        self.rows[row].prev = prev;
+        self.set_prev(row, prev);
         if let Some(next) = next {
-            self.rows[next].prev = Some(row);
+            self.set_prev(next, Some(row));
         }
     }
 
@@ -268,7 +304,7 @@ impl Index {
     fn unlink(&mut self, row: usize) {
         let map = self.rows[row].map_key();
         let id = self.rows[row].key.keyframe_id;
-        let prev = self.rows[row].prev;
+        let prev = self.prev(row);
         let Some(track) = self.tracks.get_mut(&map) else {
             return;
         };
@@ -278,9 +314,34 @@ impl Index {
             self.tracks.remove(&map);
         }
         if let Some(next) = next {
-            self.rows[next].prev = prev;
+            self.set_prev(next, prev);
         }
-        self.rows[row].prev = None;
+        self.set_prev(row, None);
+    }
+
+    fn prev(&self, row: usize) -> Option<usize> {
+        let p = self.preds[row];
+        (p != NO_ROW).then_some(p as usize)
+    }
+
+    fn set_prev(&mut self, row: usize, prev: Option<usize>) {
+        // Rows fit in u32: `upsert` stops short of NO_ROW.
+        self.preds[row] = prev.map_or(NO_ROW, |p| p as u32);
+    }
+}
+
+/// A query's eligibility rule bound to an index's rows.
+#[derive(Debug, Clone)]
+pub struct RowEligibility<'a> {
+    rule: Eligibility,
+    ids: &'a [RowIds],
+}
+
+impl RowEligibility<'_> {
+    /// Whether `row` may be proposed. Panics if `row` is out of range.
+    #[inline]
+    pub fn test(&self, row: usize) -> bool {
+        self.rule.test(&self.ids[row])
     }
 }
 
@@ -309,7 +370,7 @@ impl KeyframeMemory for Index {
     }
 
     fn predecessor(&self, row: usize) -> Option<usize> {
-        self.rows[row].prev
+        self.prev(row)
     }
 
     fn objects(&self, row: usize) -> &[ObjectObservation] {
@@ -375,9 +436,15 @@ mod tests {
     fn check(index: &Index) {
         assert_eq!(index.matrix.len(), index.rows.len());
         assert_eq!(index.by_key.len(), index.rows.len());
+        assert_eq!(index.ids.len(), index.rows.len());
         for (row, meta) in index.rows.iter().enumerate() {
             assert_eq!(index.by_key[&meta.key], row);
             assert_eq!(index.matrix.row(row)[0], meta.key.keyframe_id as f32);
+            let ids = index.ids[row];
+            assert_eq!(
+                (ids.keyframe_id, ids.frame_id, ids.map_id),
+                (meta.key.keyframe_id, meta.frame_id, meta.map_id)
+            );
             let expected_prev = index
                 .rows
                 .iter()
@@ -387,7 +454,7 @@ mod tests {
                 })
                 .max_by_key(|(_, m)| m.key.keyframe_id)
                 .map(|(r, _)| r);
-            assert_eq!(meta.prev, expected_prev, "prev of {:?}", meta.key);
+            assert_eq!(index.prev(row), expected_prev, "prev of {:?}", meta.key);
         }
         let tracked: usize = index.tracks.values().map(|t| t.len()).sum();
         assert_eq!(tracked, index.rows.len());

@@ -10,10 +10,13 @@
 //! - [`vpr`]: HuMem-VPR scoring (SCAL, OSRL, OGTL, contradiction, fusion)
 //!   and the ranking of one query;
 //! - [`index`]: the in-memory index the scan runs over, kept by the store;
+//! - [`row_ids`]: interned robot and session ids, so the scan's eligibility
+//!   test compares integers;
 //! - [`observe`]: the hook through which queues report their depth and batch
 //!   sizes, so lower layers never read the server's metrics.
 
 pub mod index;
 pub mod keyframe;
 pub mod observe;
+pub mod row_ids;
 pub mod vpr;

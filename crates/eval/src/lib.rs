@@ -31,5 +31,6 @@ pub mod plots;
 pub mod precision;
 pub mod remote;
 pub mod run;
+pub mod scan_bench;
 pub mod text_recall;
 pub mod truth;

@@ -46,6 +46,12 @@ async fn main() -> anyhow::Result<()> {
             humem_eval::bench::perception(config, args).await
         }
         #[cfg(feature = "eval")]
+        Command::Bench(BenchCommand::Scan(args)) => {
+            let config = Config::load(cli.config.as_deref(), figment::Figment::new())?;
+            init_logging(LogFormat::Plain, "warn");
+            humem_eval::scan_bench::scan(config, args)
+        }
+        #[cfg(feature = "eval")]
         Command::Eval(args) => {
             let config = Config::load(cli.config.as_deref(), figment::Figment::new())?;
             init_logging(LogFormat::Plain, "warn,ort::logging=error");

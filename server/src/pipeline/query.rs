@@ -6,15 +6,14 @@
 //! It runs under the index's read lock on a blocking thread; it allocates
 //! only for the query's own history and the returned candidates.
 
-use std::cell::Cell;
 use std::time::Duration;
 
 use super::request::{InvalidField, Observation, QuerySpec};
 use humem_core::index::Index;
 use humem_core::keyframe::{Features, KeyframeKey, ObjectObservation, Pose};
 use humem_core::vpr::{
-    self, CandidateMeta, Contradiction, KeyframeMemory, MissingObject, NullModel, ObjectMatch,
-    QueryContext, QueryObservation, ScalHit, Scope, TextConflict, TextMatch, VprParams,
+    self, Contradiction, KeyframeMemory, MissingObject, NullModel, ObjectMatch, QueryContext,
+    QueryObservation, ScalHit, Scope, TextConflict, TextMatch, VprParams,
 };
 
 /// Why a query cannot be answered.
@@ -151,29 +150,21 @@ pub fn run(
     let mut history = vec![&current];
     history.extend(predecessors.iter());
 
-    let eligible_count = Cell::new(0u64);
-    let eligible = |row: usize| {
-        let meta = index.meta(row);
-        let ok = vpr::is_eligible(
-            &context,
-            &CandidateMeta {
-                key: &meta.key,
-                frame_id: meta.frame_id,
-                map_id: meta.map_id,
-            },
-        );
-        eligible_count.set(eligible_count.get() + u64::from(ok));
-        ok
-    };
+    let rule = index.eligibility(&context);
+    let eligible = |row: usize| rule.test(row);
     let query = QueryObservation { history };
-    let (ranked, timings) = vpr::rank_timed(params, spec.layers, &query, index, &eligible);
+    let vpr::Ranking {
+        candidates: ranked,
+        times: timings,
+        eligible: eligible_count,
+    } = vpr::rank_timed(params, spec.layers, &query, index, &eligible);
     let candidates = vpr::select(ranked, spec.threshold, spec.top_n)
         .into_iter()
         .map(|r| candidate(index, &current, r))
         .collect();
     Ok(QueryOutcome {
         candidates,
-        eligible: eligible_count.get(),
+        eligible: eligible_count as u64,
         used_predecessors: predecessor_rows
             .iter()
             .map(|&row| index.meta(row).key.keyframe_id)

@@ -5,7 +5,16 @@
 //! per-row allocation, no pointer chasing), removal is `swap_remove` so the
 //! storage stays dense, and [`dot`] is written with eight independent
 //! accumulators over `chunks_exact(8)` so that LLVM vectorises it without
-//! `unsafe` or target-specific intrinsics.
+//! `unsafe` or target-specific intrinsics; [`multiversion`] compiles it for
+//! AVX-512, AVX2 and NEON and picks the clone at run time (clones differ in
+//! instructions, not in the order of additions, so results are the same).
+//!
+//! The matrix keeps the one-byte [`CodeMatrix`] of its rows in step with
+//! them, so that large stores can be scanned on the codes first.
+
+use multiversion::multiversion;
+
+use crate::vpr::codes::CodeMatrix;
 
 /// Row-major matrix of `len()` descriptors of dimension `dim()`.
 #[derive(Debug, Clone, PartialEq, Default)]
@@ -13,6 +22,7 @@ pub struct DescriptorMatrix {
     dim: usize,
     rows: usize,
     data: Vec<f32>,
+    codes: CodeMatrix,
 }
 
 impl DescriptorMatrix {
@@ -22,6 +32,7 @@ impl DescriptorMatrix {
             dim,
             rows: 0,
             data: Vec::new(),
+            codes: CodeMatrix::new(dim),
         }
     }
 
@@ -45,6 +56,7 @@ impl DescriptorMatrix {
     pub fn push(&mut self, row: &[f32]) -> usize {
         assert_eq!(row.len(), self.dim, "descriptor dimension mismatch");
         self.data.extend_from_slice(row);
+        self.codes.push(row);
         self.rows += 1;
         self.rows - 1
     }
@@ -60,6 +72,12 @@ impl DescriptorMatrix {
         assert!(i < self.rows, "row {i} out of range");
         assert_eq!(row.len(), self.dim, "descriptor dimension mismatch");
         self.data[i * self.dim..(i + 1) * self.dim].copy_from_slice(row);
+        self.codes.set_row(i, row);
+    }
+
+    /// The one-byte codes of the rows, row-aligned.
+    pub fn codes(&self) -> &CodeMatrix {
+        &self.codes
     }
 
     /// Removes row `i` by moving the last row into its place (like
@@ -72,12 +90,14 @@ impl DescriptorMatrix {
             head[i * self.dim..(i + 1) * self.dim].copy_from_slice(tail);
         }
         self.data.truncate(last * self.dim);
+        self.codes.swap_remove(i);
         self.rows = last;
     }
 
     /// Removes every row, keeping the dimension and the allocation.
     pub fn clear(&mut self) {
         self.data.clear();
+        self.codes.clear();
         self.rows = 0;
     }
 }
@@ -85,6 +105,7 @@ impl DescriptorMatrix {
 /// `aᵀb` over the common prefix of `a` and `b` (they have equal length in
 /// practice). Eight independent accumulators let LLVM keep one SIMD register
 /// of partial sums instead of a serial dependency chain.
+#[multiversion(targets("x86_64+avx512f+avx512bw+avx512vl", "x86_64+avx2+fma", "aarch64+neon"))]
 pub fn dot(a: &[f32], b: &[f32]) -> f32 {
     let n = a.len().min(b.len());
     let (a, b) = (&a[..n], &b[..n]);
@@ -115,6 +136,7 @@ pub fn dot(a: &[f32], b: &[f32]) -> f32 {
 /// reading the row once. SCAL compares every stored row with the query and
 /// its predecessors; fusing those products into one pass over the matrix
 /// keeps the scan bound by one read of memory instead of `Q`.
+#[multiversion(targets("x86_64+avx512f+avx512bw+avx512vl", "x86_64+avx2+fma", "aarch64+neon"))]
 pub fn multi_dot<const Q: usize>(queries: &[&[f32]; Q], row: &[f32]) -> [f32; Q] {
     let n = queries.iter().fold(row.len(), |n, q| n.min(q.len()));
     let full = n - n % 8;

@@ -13,7 +13,7 @@ use crate::vpr::matrix::DescriptorMatrix;
 use crate::vpr::text::normalize;
 
 /// Read access to the indexed keyframes, addressed by row.
-pub trait KeyframeMemory {
+pub trait KeyframeMemory: Sync {
     /// The descriptors, one row per stored keyframe.
     fn descriptors(&self) -> &DescriptorMatrix;
     /// The appearance thumbnails, row-aligned with the descriptors.

@@ -18,16 +18,21 @@
 //!
 //! Supporting modules: [`params`] (every constant, configurable),
 //! [`eligibility`] (which stored keyframes may be proposed), [`matrix`] (the
-//! contiguous descriptor matrix the scan runs over), [`memory`] (the view of
+//! contiguous descriptor matrix the scan runs over), [`codes`] (its one-byte
+//! codes with error bounds), [`kernels`] (the SIMD inner loops), [`scan`]
+//! (SCAL's pass over the store, exact or on the codes, on every core),
+//! [`memory`] (the view of
 //! the store that ranking needs), [`text`] (string similarity and
 //! distinctiveness) and `assignment` (the Hungarian solver adapter).
 
 pub mod appearance;
 mod assignment;
 pub mod calibration;
+pub mod codes;
 pub mod contradiction;
 pub mod eligibility;
 pub mod fusion;
+pub mod kernels;
 pub mod matrix;
 pub mod memory;
 pub mod ogtl;
@@ -35,6 +40,7 @@ pub mod osrl;
 pub mod params;
 pub mod rank;
 pub mod scal;
+pub mod scan;
 pub mod text;
 
 #[cfg(test)]
@@ -48,9 +54,10 @@ pub use matrix::{dot, DescriptorMatrix};
 pub use memory::{KeyframeMemory, VecMemory};
 pub use ogtl::{ogtl, text_profile, text_profile_in, OgtlResult, TextMatch, TextProfile};
 pub use osrl::{object_affinity, osrl, spatial_kernel, ObjectMatch, OsrlResult};
-pub use params::{Calibration, Layers, TemporalMode, VprParams};
-pub use rank::{rank, rank_timed, select, QueryObservation, RankedCandidate, StageTimes};
+pub use params::{Calibration, Layers, ScanMode, TemporalMode, VprParams};
+pub use rank::{rank, rank_timed, select, QueryObservation, RankedCandidate, Ranking, StageTimes};
 pub use scal::{cosine, modulated, scal_scores, scene_compatibility, ScalHit, ScalQuery};
+pub use scan::{scal_scan, ScalScan};
 pub use text::{distinctiveness, string_similarity};
 
 /// `clip(x, 0, 1)`, with NaN mapped to 0 and −0 to +0 so that scores always

@@ -11,6 +11,8 @@ use std::collections::BTreeMap;
 
 use serde::{Deserialize, Serialize};
 
+pub use super::scan::ScanMode;
+
 /// Tunable constants of the scoring (defaults from the paper and `DESIGN.md`).
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(default, deny_unknown_fields)]
@@ -32,6 +34,11 @@ pub struct VprParams {
     pub temporal: TemporalMode,
     /// `K`, number of SCAL candidates passed to OSRL and OGTL.
     pub top_k: usize,
+    /// Which pass scores the store: `auto` (default) scans the one-byte
+    /// codes first on large stores and re-scores exactly, `exact` always
+    /// reads the f32 descriptors, `compressed` always the codes first. All
+    /// three give the same answer ([`super::scan`]).
+    pub scan: ScanMode,
     /// `λ_a`, weight of the area difference in the layout distance `d²`.
     pub lambda_a: f32,
     /// `σ_m`, width of the Gaussian spatial kernel `G`.
@@ -140,6 +147,7 @@ impl Default for VprParams {
             alpha: [0.5, 0.3, 0.2],
             temporal: TemporalMode::Support,
             top_k: 25,
+            scan: ScanMode::Auto,
             lambda_a: 1.0,
             sigma_m: 0.25,
             tau_g: 0.6,

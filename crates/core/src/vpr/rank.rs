@@ -19,7 +19,8 @@ use crate::vpr::memory::KeyframeMemory;
 use crate::vpr::ogtl::{ogtl, text_profile_in, OgtlResult};
 use crate::vpr::osrl::{osrl, OsrlResult};
 use crate::vpr::params::{Calibration, Layers, VprParams};
-use crate::vpr::scal::{scal_scan, ScalHit, ScalQuery};
+use crate::vpr::scal::{ScalHit, ScalQuery};
+use crate::vpr::scan::{scal_scan, ScalScan};
 
 /// The query: its current observation and recent predecessors.
 #[derive(Debug, Clone, PartialEq)]
@@ -66,14 +67,29 @@ fn by_fused_score(a: &RankedCandidate, b: &RankedCandidate) -> Ordering {
 
 /// Ranks the eligible rows of `memory` for `query`: SCAL top K, then OSRL
 /// and OGTL (as enabled) on those K only, `B`, `Λ`, sorted by `Λ`.
-pub fn rank<M: KeyframeMemory + ?Sized>(
+pub fn rank<M, E>(
     params: &VprParams,
     layers: Layers,
     query: &QueryObservation,
     memory: &M,
-    eligible: &dyn Fn(usize) -> bool,
-) -> Vec<RankedCandidate> {
-    rank_timed(params, layers, query, memory, eligible).0
+    eligible: &E,
+) -> Vec<RankedCandidate>
+where
+    M: KeyframeMemory + ?Sized,
+    E: Fn(usize) -> bool + Sync + ?Sized,
+{
+    rank_timed(params, layers, query, memory, eligible).candidates
+}
+
+/// What [`rank_timed`] returns.
+#[derive(Debug, Clone, Default)]
+pub struct Ranking {
+    /// The top K by SCAL, with all of their evidence, best first.
+    pub candidates: Vec<RankedCandidate>,
+    /// Time spent per layer.
+    pub times: StageTimes,
+    /// Stored rows that passed eligibility.
+    pub eligible: usize,
 }
 
 /// Wall time spent in each layer by one [`rank_timed`] call.
@@ -104,22 +120,30 @@ impl StageTimes {
 
 /// [`rank`], also reporting the time spent in each layer (reading the clock
 /// is the only side effect).
-pub fn rank_timed<M: KeyframeMemory + ?Sized>(
+pub fn rank_timed<M, E>(
     params: &VprParams,
     layers: Layers,
     query: &QueryObservation,
     memory: &M,
-    eligible: &dyn Fn(usize) -> bool,
-) -> (Vec<RankedCandidate>, StageTimes) {
+    eligible: &E,
+) -> Ranking
+where
+    M: KeyframeMemory + ?Sized,
+    E: Fn(usize) -> bool + Sync + ?Sized,
+{
     let mut times = StageTimes::default();
     let Some(current) = query.history.first() else {
-        return (Vec::new(), times);
+        return Ranking::default();
     };
     let scal_query = ScalQuery {
         history: query.history.clone(),
     };
     let clock = Instant::now();
-    let (hits, null) = scal_scan(params, &scal_query, memory, eligible);
+    let ScalScan {
+        hits,
+        null,
+        eligible,
+    } = scal_scan(params, &scal_query, memory, eligible);
     times.scal = clock.elapsed();
     let query_objects = &current.objects;
     // The query side of OGTL is computed once, not once per candidate.
@@ -182,7 +206,11 @@ pub fn rank_timed<M: KeyframeMemory + ?Sized>(
     let clock = Instant::now();
     ranked.sort_unstable_by(by_fused_score);
     times.fusion += clock.elapsed();
-    (ranked, times)
+    Ranking {
+        candidates: ranked,
+        times,
+        eligible,
+    }
 }
 
 /// The candidates with `score > threshold` (strict), at most `max`, in the

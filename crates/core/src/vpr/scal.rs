@@ -1,28 +1,19 @@
 //! SCAL, the Scene Context Attention Layer: the scene-primary hypothesis.
 //!
-//! It is the only layer that touches every eligible keyframe, so it is one
-//! pass over the descriptor matrix: the clipped cosine `s_e`, a mild scene
+//! The formulas of one candidate: the clipped cosine `s_e`, a mild scene
 //! class modulation `s̃_e`, and a temporal average `S_s` over the query's
 //! and the candidate's short histories (following each side's predecessor
-//! chain). Only the top `K` by `S_s` go on to the object and text layers, and
-//! they are selected with a partial sort, so the pass stays `O(N·d)`.
-//!
-//! The descriptor products of every row with the query and its (up to two)
-//! predecessors are computed in one fused read of the matrix, together with
-//! the [`appearance`](crate::vpr::appearance) thumbnails' similarities when
-//! that channel is on, and become `s_e`; a candidate's temporal terms are
-//! then looked up at its predecessors' rows. Scene
-//! compatibility uses the query side prepared once ([`SceneProfile`]).
-
-use std::cmp::Ordering;
+//! chain). Scene compatibility uses the query side prepared once
+//! ([`SceneProfile`]). The pass over every stored row that applies them, and
+//! keeps the top `K` for the object and text layers, is
+//! [`scan`](super::scan).
 
 use crate::keyframe::{Features, SceneClass};
-use crate::vpr::appearance::{self, AppearanceMatrix};
-use crate::vpr::calibration::NullModel;
 use crate::vpr::clip01;
-use crate::vpr::matrix::{dot, multi_dot, DescriptorMatrix};
+use crate::vpr::matrix::dot;
 use crate::vpr::memory::KeyframeMemory;
 use crate::vpr::params::{TemporalMode, VprParams};
+use crate::vpr::scan::scal_scan;
 
 /// `s_e = clip(ê_Qᵀ ê_C, 0, 1)` for L2-normalised descriptors.
 pub fn cosine(a: &[f32], b: &[f32]) -> f32 {
@@ -147,19 +138,20 @@ pub struct ScalHit {
 ///
 /// `C_{i−j}` follows `predecessor` `j` times; `k` is 1 plus the number of
 /// steps for which both `Q_{t−j}` and `C_{i−j}` exist, contiguous from
-/// `j = 0`, at most `alpha.len()`. The query side comes prepared, one entry
-/// per available query observation (at least one): `scenes[j]` is the scene
-/// profile of `Q_{t−j}` and `s_e[r][j]` is `s_e(Q_{t−j}, r)`, from
-/// [`history_similarities`].
-fn scal_hit<M: KeyframeMemory + ?Sized>(
+/// `j = 0`, at most `min(steps, α.len())`. `pair(c, j)` gives `s_e` and
+/// `C_cat` of query step `j` and stored row `c`. The result is monotone in
+/// every `s_e` (each operation is), which the compressed scan relies on to
+/// bound it from the codes.
+#[inline]
+pub(crate) fn temporal_hit<M: KeyframeMemory + ?Sized>(
     params: &VprParams,
     memory: &M,
-    scenes: &[SceneProfile],
-    s_e: &[[f32; STEPS]],
+    steps: usize,
     row: usize,
+    pair: impl Fn(usize, usize) -> (f32, Option<f32>),
 ) -> ScalHit {
-    let descriptors = memory.descriptors();
-    let steps = STEPS.min(scenes.len());
+    let rows = memory.descriptors().len();
+    let steps = STEPS.min(steps);
     let (mut num, mut den) = (0.0f32, 0.0f32);
     let (mut first_cos, mut first_cat, mut current) = (0.0, None, 0.0);
     let mut depth = 0;
@@ -167,12 +159,11 @@ fn scal_hit<M: KeyframeMemory + ?Sized>(
     for j in 0..steps {
         if j > 0 {
             match memory.predecessor(c_row) {
-                Some(p) if p < descriptors.len() => c_row = p,
+                Some(p) if p < rows => c_row = p,
                 _ => break,
             }
         }
-        let s_e = s_e[c_row][j];
-        let c_cat = scenes[j].compatibility(memory.scene(c_row));
+        let (s_e, c_cat) = pair(c_row, j);
         let s_tilde = modulated(s_e, c_cat, params.lambda_c);
         if j == 0 {
             (first_cos, first_cat, current) = (s_e, c_cat, s_tilde);
@@ -195,122 +186,23 @@ fn scal_hit<M: KeyframeMemory + ?Sized>(
     }
 }
 
-/// Ranking order of SCAL hits: `S_s` descending, then lower row first.
-fn by_score(a: &ScalHit, b: &ScalHit) -> Ordering {
-    b.score.total_cmp(&a.score).then(a.row.cmp(&b.row))
-}
-
 /// SCAL over every eligible row: the top `params.top_k` hits by `S_s`
 /// descending (ties: lower row first). Empty if the query has no history.
-pub fn scal_scores<M: KeyframeMemory + ?Sized>(
+pub fn scal_scores<M, E>(
     params: &VprParams,
     query: &ScalQuery,
     memory: &M,
-    eligible: &dyn Fn(usize) -> bool,
-) -> Vec<ScalHit> {
-    scal_scan(params, query, memory, eligible).0
-}
-
-/// [`scal_scores`], with the query's null distribution estimated from the
-/// `S_s` of every eligible row in the same pass (see [`NullModel`]).
-pub fn scal_scan<M: KeyframeMemory + ?Sized>(
-    params: &VprParams,
-    query: &ScalQuery,
-    memory: &M,
-    eligible: &dyn Fn(usize) -> bool,
-) -> (Vec<ScalHit>, NullModel) {
-    if query.history.is_empty() {
-        return (Vec::new(), NullModel::default());
-    }
-    let s_e = history_similarities(
-        &query.history,
-        memory.descriptors(),
-        memory.appearance(),
-        params.appearance_weight,
-    );
-    let scenes: Vec<SceneProfile> = query
-        .history
-        .iter()
-        .take(STEPS)
-        .map(|q| SceneProfile::new(&q.scene))
-        .collect();
-    let mut hits: Vec<ScalHit> = (0..memory.descriptors().len())
-        .filter(|&row| eligible(row))
-        .map(|row| scal_hit(params, memory, &scenes, &s_e, row))
-        .collect();
-    let null = NullModel::estimate(hits.iter().map(|h| h.score));
-    top_k(&mut hits, params.top_k);
-    (hits, null)
+    eligible: &E,
+) -> Vec<ScalHit>
+where
+    M: KeyframeMemory + ?Sized,
+    E: Fn(usize) -> bool + Sync + ?Sized,
+{
+    scal_scan(params, query, memory, eligible).hits
 }
 
 /// Temporal steps SCAL can use: the length of `α`.
-const STEPS: usize = 3;
-
-/// `s_e[r][j] = s_e(Q_{t−j}, r)` for every row `r` and every available
-/// query observation `j < 3` (0 where the query has no such observation),
-/// in one pass over the matrices: every row's descriptor (and thumbnail,
-/// when the appearance channel is on) is read once, whatever the temporal
-/// depth. `s_e` is the clipped cosine, blended with the thumbnails'
-/// similarity where both sides have one ([`appearance::fused`]).
-fn history_similarities(
-    history: &[&Features],
-    matrix: &DescriptorMatrix,
-    thumbnails: &AppearanceMatrix,
-    weight: f32,
-) -> Vec<[f32; STEPS]> {
-    debug_assert_eq!(thumbnails.len(), matrix.len(), "row-aligned matrices");
-    let steps = history.len().min(STEPS);
-    let q = |j: usize| history[j].descriptor.as_slice();
-    // The query's thumbnails; none when the channel is off.
-    let query_thumbnails: [Option<(&[i8], f32)>; STEPS] = std::array::from_fn(|j| {
-        let t = history.get(j).map(|f| f.appearance.as_slice())?;
-        (weight > 0.0 && t.len() == appearance::LEN)
-            .then(|| (t, appearance::norm(t)))
-            .filter(|&(_, norm)| norm > 0.0)
-    });
-    let with_thumbnails = query_thumbnails.iter().any(Option::is_some);
-    (0..matrix.len())
-        .map(|r| {
-            let row = matrix.row(r);
-            let dots = match steps {
-                0 => [0.0; STEPS],
-                1 => {
-                    let [a] = multi_dot(&[q(0)], row);
-                    [a, 0.0, 0.0]
-                }
-                2 => {
-                    let [a, b] = multi_dot(&[q(0), q(1)], row);
-                    [a, b, 0.0]
-                }
-                _ => multi_dot(&[q(0), q(1), q(2)], row),
-            };
-            let stored = if with_thumbnails {
-                thumbnails.row(r)
-            } else {
-                None
-            };
-            std::array::from_fn(|j| {
-                let rho = stored
-                    .zip(query_thumbnails[j])
-                    .map(|(c, q)| appearance::similarity(q, c));
-                appearance::fused(dots[j], rho, weight)
-            })
-        })
-        .collect()
-}
-
-/// Keeps the best `k` hits in ranking order: `O(N + k log k)`.
-fn top_k(hits: &mut Vec<ScalHit>, k: usize) {
-    if k == 0 {
-        hits.clear();
-        return;
-    }
-    if hits.len() > k {
-        hits.select_nth_unstable_by(k - 1, by_score);
-        hits.truncate(k);
-    }
-    hits.sort_unstable_by(by_score);
-}
+pub(crate) const STEPS: usize = 3;
 
 #[cfg(test)]
 mod tests {
@@ -621,7 +513,7 @@ mod tests {
                 .filter(|&r| eligible(r))
                 .map(|r| reference_hit(&params, &query.history, &m, r))
                 .collect();
-            all.sort_by(by_score);
+            all.sort_by(crate::vpr::scan::by_score);
             all.truncate(k);
             prop_assert_eq!(fast, all);
         }

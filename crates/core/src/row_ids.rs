@@ -1,0 +1,234 @@
+//! Interned robot and session ids, and the eligibility rule compiled
+//! against them for the scan.
+//!
+//! The scan tests eligibility on every stored row. Comparing the strings of
+//! each row's key costs two pointer chases and a `memcmp` per row, more
+//! than the row's code dot products. So the index keeps, row-aligned, a
+//! small table of integers ([`RowIds`]), and a query's [`QueryContext`] is
+//! compiled once into integer comparisons ([`Eligibility`]). The rule is the
+//! one in [`vpr::eligibility`](crate::vpr::eligibility); a property test
+//! checks that both agree on every row.
+
+use std::collections::HashMap;
+
+use crate::keyframe::SessionKey;
+use crate::vpr::eligibility::{QueryContext, Scope};
+
+/// The integers the eligibility rule reads about one stored keyframe.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct RowIds {
+    /// Interned robot id.
+    pub robot: u32,
+    /// Interned (robot, session) pair.
+    pub session: u32,
+    /// Atlas map id within the session.
+    pub map_id: u64,
+    /// Source-frame id.
+    pub frame_id: u64,
+    /// Keyframe id within the session.
+    pub keyframe_id: u64,
+}
+
+/// Robot and session strings to dense integers. Ids are never reused or
+/// released: a fleet has few robots and sessions next to its keyframes.
+#[derive(Debug, Clone, Default)]
+pub struct Interner {
+    robots: HashMap<String, u32>,
+    sessions: HashMap<(u32, String), u32>,
+}
+
+impl Interner {
+    /// The ids of `session`, interning them if new.
+    pub fn intern(&mut self, session: &SessionKey) -> (u32, u32) {
+        let next_robot = self.robots.len() as u32;
+        let robot = *self
+            .robots
+            .entry(session.robot_id.clone())
+            .or_insert(next_robot);
+        let next_session = self.sessions.len() as u32;
+        let id = *self
+            .sessions
+            .entry((robot, session.session_id.clone()))
+            .or_insert(next_session);
+        (robot, id)
+    }
+
+    fn robot(&self, robot_id: &str) -> Option<u32> {
+        self.robots.get(robot_id).copied()
+    }
+
+    fn session(&self, robot: u32, session_id: &str) -> Option<u32> {
+        self.sessions.get(&(robot, session_id.to_string())).copied()
+    }
+}
+
+/// A map named in a listed scope, compiled.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+struct MapIds {
+    robot: u32,
+    /// `None`: any session of the robot.
+    session: Option<u32>,
+    map_id: u64,
+}
+
+/// The compiled scope.
+#[derive(Debug, Clone, PartialEq, Eq)]
+enum CompiledScope {
+    SameMap,
+    OtherMaps,
+    AllMaps,
+    Listed { robots: Vec<u32>, maps: Vec<MapIds> },
+}
+
+/// A query's eligibility rule over a table of [`RowIds`].
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub struct Eligibility {
+    /// The query's session, if any stored keyframe has it (else no row is
+    /// in the query's session).
+    session: Option<u32>,
+    keyframe_id: Option<u64>,
+    frame_id: u64,
+    map_id: u64,
+    min_frame_gap: u64,
+    scope: CompiledScope,
+}
+
+impl Eligibility {
+    /// Compiles `context` against the ids interned so far. Names that were
+    /// never interned match no row.
+    pub fn compile(context: &QueryContext, interner: &Interner) -> Eligibility {
+        let session = interner
+            .robot(&context.session.robot_id)
+            .and_then(|robot| interner.session(robot, &context.session.session_id));
+        let scope = match &context.scope {
+            Scope::SameMap => CompiledScope::SameMap,
+            Scope::OtherMaps => CompiledScope::OtherMaps,
+            Scope::AllMaps => CompiledScope::AllMaps,
+            Scope::Listed { robot_ids, maps } => CompiledScope::Listed {
+                robots: robot_ids.iter().filter_map(|r| interner.robot(r)).collect(),
+                maps: maps
+                    .iter()
+                    .filter_map(|m| {
+                        let robot = interner.robot(&m.robot_id)?;
+                        let session = match &m.session_id {
+                            None => None,
+                            Some(s) => Some(interner.session(robot, s)?),
+                        };
+                        Some(MapIds {
+                            robot,
+                            session,
+                            map_id: m.map_id,
+                        })
+                    })
+                    .collect(),
+            },
+        };
+        Eligibility {
+            session,
+            keyframe_id: context.keyframe_id,
+            frame_id: context.frame_id,
+            map_id: context.map_id,
+            min_frame_gap: context.min_frame_gap,
+            scope,
+        }
+    }
+
+    /// Whether a row with `ids` may be proposed.
+    #[inline]
+    pub fn test(&self, ids: &RowIds) -> bool {
+        let own_session = self.session == Some(ids.session);
+        let gap = !own_session
+            || (self.keyframe_id != Some(ids.keyframe_id)
+                && self.frame_id.abs_diff(ids.frame_id) >= self.min_frame_gap);
+        if !gap {
+            return false;
+        }
+        let same_map = own_session && ids.map_id == self.map_id;
+        match &self.scope {
+            CompiledScope::SameMap => same_map,
+            CompiledScope::OtherMaps => !same_map,
+            CompiledScope::AllMaps => true,
+            CompiledScope::Listed { robots, maps } => {
+                robots.contains(&ids.robot)
+                    || maps.iter().any(|m| {
+                        m.robot == ids.robot
+                            && m.map_id == ids.map_id
+                            && m.session.is_none_or(|s| s == ids.session)
+                    })
+            }
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::keyframe::KeyframeKey;
+    use crate::vpr::eligibility::{is_eligible, CandidateMeta, MapRef};
+    use proptest::prelude::*;
+
+    const NAMES: &[&str] = &["a", "b", "c"];
+
+    fn name() -> impl Strategy<Value = String> {
+        prop::sample::select(NAMES).prop_map(str::to_string)
+    }
+
+    fn scope() -> impl Strategy<Value = Scope> {
+        let map = (name(), prop::option::of(name()), 0u64..3).prop_map(
+            |(robot_id, session_id, map_id)| MapRef {
+                robot_id,
+                session_id,
+                map_id,
+            },
+        );
+        prop_oneof![
+            Just(Scope::SameMap),
+            Just(Scope::OtherMaps),
+            Just(Scope::AllMaps),
+            (
+                prop::collection::vec(name(), 0..3),
+                prop::collection::vec(map, 0..3)
+            )
+                .prop_map(|(robot_ids, maps)| Scope::Listed { robot_ids, maps }),
+        ]
+    }
+
+    proptest! {
+        #[test]
+        fn compiled_rule_agrees_with_the_string_rule(
+            rows in prop::collection::vec((name(), name(), 0u64..6, 0u64..3, 0u64..400), 1..40),
+            query in (name(), name(), prop::option::of(0u64..6), 0u64..400, 0u64..3, 0u64..200),
+            scope in scope(),
+        ) {
+            let mut interner = Interner::default();
+            let keys: Vec<(KeyframeKey, u64, u64, RowIds)> = rows
+                .into_iter()
+                // Leave robot "c" out of the store: names never interned.
+                .filter(|(robot, ..)| robot != "c")
+                .map(|(robot_id, session_id, keyframe_id, map_id, frame_id)| {
+                    let key = KeyframeKey { robot_id, session_id, keyframe_id };
+                    let (robot, session) = interner.intern(&key.session());
+                    let ids = RowIds { robot, session, map_id, frame_id, keyframe_id };
+                    (key, frame_id, map_id, ids)
+                })
+                .collect();
+            let (robot_id, session_id, keyframe_id, frame_id, map_id, min_frame_gap) = query;
+            let context = QueryContext {
+                session: SessionKey { robot_id, session_id },
+                keyframe_id,
+                frame_id,
+                map_id,
+                min_frame_gap,
+                scope,
+            };
+            let rule = Eligibility::compile(&context, &interner);
+            for (key, frame_id, map_id, ids) in &keys {
+                let expected = is_eligible(
+                    &context,
+                    &CandidateMeta { key, frame_id: *frame_id, map_id: *map_id },
+                );
+                prop_assert_eq!(rule.test(ids), expected, "{:?}", key);
+            }
+        }
+    }
+}

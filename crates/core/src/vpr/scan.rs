@@ -1,0 +1,672 @@
+//! The SCAL pass over the whole eligible store, on every core.
+//!
+//! SCAL is the only layer that reads every stored keyframe, so its pass is
+//! what a query costs at fleet scale. Two passes return the same hits and
+//! the same null model, bit for bit:
+//!
+//! - **exact**: every row's f32 descriptor against the query and its
+//!   predecessors (one fused read), then `S_s` for every eligible row;
+//! - **compressed**: the one-byte [`codes`](super::codes) first, a quarter
+//!   of the bytes, giving for every row an upper bound on its `s_e`
+//!   (estimate plus the code error bound). `S_s` is monotone in each `s_e`,
+//!   so the same temporal formula over the upper bounds bounds `S_s` from
+//!   above, first without the scene modulation (it only lowers a score),
+//!   then with it for the rows still in the running. The `K` rows with the
+//!   highest bounds are scored exactly; the lowest of those exact scores,
+//!   `L`, is a lower bound on the K-th best exact score, so only rows whose
+//!   bound reaches `L` can be in the top K, and only those are scored
+//!   exactly. The null model's sample (every `stride`-th eligible row) is
+//!   scored exactly too.
+//!
+//! [`ScanMode::Auto`] takes the compressed pass from
+//! [`COMPRESSED_MIN_ROWS`] rows, where the sample and the rescoring are
+//! small next to the rows it saves reading.
+//!
+//! Both passes split the rows into blocks that rayon runs on every core;
+//! each row's result depends only on the row, and ties order by row, so the
+//! answer does not depend on the number of threads.
+
+use std::cmp::Ordering;
+
+use rayon::prelude::*;
+use serde::{Deserialize, Serialize};
+
+use crate::keyframe::Features;
+use crate::vpr::appearance;
+use crate::vpr::calibration::NullModel;
+use crate::vpr::codes::QueryCode;
+use crate::vpr::kernels::CodeKernel;
+use crate::vpr::matrix::{dot, multi_dot};
+use crate::vpr::memory::KeyframeMemory;
+use crate::vpr::params::VprParams;
+use crate::vpr::scal::{temporal_hit, ScalHit, ScalQuery, SceneProfile, STEPS};
+
+/// Which pass scores the store (`vpr.scan`).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, Serialize, Deserialize)]
+#[serde(rename_all = "lowercase")]
+pub enum ScanMode {
+    /// Compressed from [`COMPRESSED_MIN_ROWS`] stored rows, exact below.
+    #[default]
+    Auto,
+    /// Always the f32 pass.
+    Exact,
+    /// Always the code pass with exact re-scoring (same results).
+    Compressed,
+}
+
+/// Stored rows from which [`ScanMode::Auto`] scans the codes first.
+pub const COMPRESSED_MIN_ROWS: usize = 32_768;
+
+/// Rows per block of parallel work.
+const BLOCK: usize = 4096;
+
+/// What one SCAL pass found.
+#[derive(Debug, Clone, PartialEq, Default)]
+pub struct ScalScan {
+    /// The top `K` hits by `S_s` descending (ties: lower row first).
+    pub hits: Vec<ScalHit>,
+    /// The query's null distribution over the eligible rows.
+    pub null: NullModel,
+    /// Rows that passed eligibility.
+    pub eligible: usize,
+}
+
+/// SCAL over every eligible row (see the module doc for the two passes).
+/// Empty if the query has no history.
+pub fn scal_scan<M, E>(params: &VprParams, query: &ScalQuery, memory: &M, eligible: &E) -> ScalScan
+where
+    M: KeyframeMemory + ?Sized,
+    E: Fn(usize) -> bool + Sync + ?Sized,
+{
+    if query.history.is_empty() {
+        return ScalScan::default();
+    }
+    let side = QuerySide::new(params, &query.history);
+    let rows = memory.descriptors().len();
+    let compressed = match params.scan {
+        ScanMode::Auto => rows >= COMPRESSED_MIN_ROWS,
+        ScanMode::Exact => false,
+        ScanMode::Compressed => true,
+    };
+    if compressed {
+        compressed_scan(params, &side, memory, eligible)
+    } else {
+        exact_scan(params, &side, memory, eligible)
+    }
+}
+
+/// The query side, prepared once: descriptors, scene profiles and
+/// thumbnails of up to [`STEPS`] observations.
+struct QuerySide<'a> {
+    descriptors: Vec<&'a [f32]>,
+    scenes: Vec<SceneProfile>,
+    thumbnails: [Option<(&'a [i8], f32)>; STEPS],
+    with_thumbnails: bool,
+    weight: f32,
+}
+
+impl<'a> QuerySide<'a> {
+    fn new(params: &VprParams, history: &[&'a Features]) -> Self {
+        let steps = history.len().min(STEPS);
+        let weight = params.appearance_weight;
+        let thumbnails: [Option<(&[i8], f32)>; STEPS] = std::array::from_fn(|j| {
+            let t = history.get(j).map(|f| f.appearance.as_slice())?;
+            (weight > 0.0 && t.len() == appearance::LEN)
+                .then(|| (t, appearance::norm(t)))
+                .filter(|&(_, norm)| norm > 0.0)
+        });
+        QuerySide {
+            descriptors: history[..steps]
+                .iter()
+                .map(|f| f.descriptor.as_slice())
+                .collect(),
+            scenes: history[..steps]
+                .iter()
+                .map(|f| SceneProfile::new(&f.scene))
+                .collect(),
+            with_thumbnails: thumbnails.iter().any(Option::is_some),
+            thumbnails,
+            weight,
+        }
+    }
+
+    fn steps(&self) -> usize {
+        self.descriptors.len()
+    }
+
+    /// `s_e` of step `j` for a row whose descriptor product is `dot`.
+    fn fused<M: KeyframeMemory + ?Sized>(&self, memory: &M, row: usize, j: usize, dot: f32) -> f32 {
+        let stored = if self.with_thumbnails {
+            memory.appearance().row(row)
+        } else {
+            None
+        };
+        let rho = stored
+            .zip(self.thumbnails[j])
+            .map(|(c, q)| appearance::similarity(q, c));
+        appearance::fused(dot, rho, self.weight)
+    }
+
+    /// `s_e(Q_{t−j}, row)` for every step, from one fused read of the f32
+    /// row (0 beyond the query's history).
+    fn exact_row<M: KeyframeMemory + ?Sized>(&self, memory: &M, row: usize) -> [f32; STEPS] {
+        let r = memory.descriptors().row(row);
+        let q = &self.descriptors;
+        let dots = match self.steps() {
+            0 => [0.0; STEPS],
+            1 => {
+                let [a] = multi_dot(&[q[0]], r);
+                [a, 0.0, 0.0]
+            }
+            2 => {
+                let [a, b] = multi_dot(&[q[0], q[1]], r);
+                [a, b, 0.0]
+            }
+            _ => multi_dot(&[q[0], q[1], q[2]], r),
+        };
+        std::array::from_fn(|j| self.fused(memory, row, j, dots[j]))
+    }
+
+    /// `s_e(Q_{t−j}, row)` of one step, exactly as [`QuerySide::exact_row`]
+    /// computes it.
+    fn exact_pair<M: KeyframeMemory + ?Sized>(&self, memory: &M, row: usize, j: usize) -> f32 {
+        let d = dot(self.descriptors[j], memory.descriptors().row(row));
+        self.fused(memory, row, j, d)
+    }
+
+    /// Upper bounds on `s_e(Q_{t−j}, row)` from the codes, for the rows
+    /// from `first` on, one per entry of `out` (`bounds` is scratch space).
+    fn upper_rows<M: KeyframeMemory + ?Sized>(
+        &self,
+        memory: &M,
+        codes: &[QueryCode],
+        kernel: CodeKernel,
+        first: usize,
+        bounds: &mut Vec<[(f32, f32); STEPS]>,
+        out: &mut [[f32; STEPS]],
+    ) {
+        let m = memory.descriptors().codes();
+        bounds.clear();
+        bounds.resize(out.len(), [(0.0, 0.0); STEPS]);
+        match codes {
+            [] => {}
+            [a] => {
+                let mut one = vec![[(0.0, 0.0)]; out.len()];
+                m.dot_bounds_rows(kernel, first, &[a], &mut one);
+                bounds.iter_mut().zip(one).for_each(|(b, [x])| b[0] = x);
+            }
+            [a, b] => {
+                let mut two = vec![[(0.0, 0.0); 2]; out.len()];
+                m.dot_bounds_rows(kernel, first, &[a, b], &mut two);
+                bounds.iter_mut().zip(two).for_each(|(b, [x, y])| {
+                    b[0] = x;
+                    b[1] = y;
+                });
+            }
+            [a, b, c, ..] => m.dot_bounds_rows(kernel, first, &[a, b, c], bounds),
+        }
+        // The relative margin covers the scene modulation's rounding: the
+        // loose bound skips it, and (1 + λc)/(1 + λ) at c = 1 can round a
+        // hair above 1. [`QuerySide::upper_pair`] does the same for one.
+        for (i, (o, b)) in out.iter_mut().zip(bounds.iter()).enumerate() {
+            *o = std::array::from_fn(|j| {
+                let (estimate, bound) = b[j];
+                self.fused(memory, first + i, j, estimate + bound) * (1.0 + 1e-6)
+            });
+        }
+    }
+
+    /// An upper bound on `s_e(Q_{t−j}, row)` from the codes, as
+    /// [`QuerySide::upper_rows`] computes it.
+    fn upper_pair<M: KeyframeMemory + ?Sized>(
+        &self,
+        memory: &M,
+        codes: &[QueryCode],
+        kernel: CodeKernel,
+        row: usize,
+        j: usize,
+    ) -> f32 {
+        let [(estimate, bound)] =
+            memory
+                .descriptors()
+                .codes()
+                .dot_bounds(kernel, row, &[&codes[j]]);
+        self.fused(memory, row, j, estimate + bound) * (1.0 + 1e-6)
+    }
+
+    /// A lower bound on `s_e(Q_{t−j}, row)` from the codes.
+    fn lower_pair<M: KeyframeMemory + ?Sized>(
+        &self,
+        memory: &M,
+        codes: &[QueryCode],
+        kernel: CodeKernel,
+        row: usize,
+        j: usize,
+    ) -> f32 {
+        let [(estimate, bound)] =
+            memory
+                .descriptors()
+                .codes()
+                .dot_bounds(kernel, row, &[&codes[j]]);
+        self.fused(memory, row, j, estimate - bound)
+    }
+
+    /// The exact hit of `row`, following its predecessors.
+    fn exact_hit<M: KeyframeMemory + ?Sized>(
+        &self,
+        params: &VprParams,
+        memory: &M,
+        row: usize,
+    ) -> ScalHit {
+        temporal_hit(params, memory, self.steps(), row, |c, j| {
+            (
+                self.exact_pair(memory, c, j),
+                self.scenes[j].compatibility(memory.scene(c)),
+            )
+        })
+    }
+}
+
+/// Ranking order of SCAL hits: `S_s` descending, then lower row first.
+pub(crate) fn by_score(a: &ScalHit, b: &ScalHit) -> Ordering {
+    b.score.total_cmp(&a.score).then(a.row.cmp(&b.row))
+}
+
+/// Keeps the best `k` hits in ranking order: `O(N + k log k)`.
+fn top_k(hits: &mut Vec<ScalHit>, k: usize) {
+    if k == 0 {
+        hits.clear();
+        return;
+    }
+    if hits.len() > k {
+        hits.select_nth_unstable_by(k - 1, by_score);
+        hits.truncate(k);
+    }
+    hits.sort_unstable_by(by_score);
+}
+
+/// The f32 pass: every row's `s_e`, then `S_s` of every eligible row.
+fn exact_scan<M, E>(params: &VprParams, side: &QuerySide, memory: &M, eligible: &E) -> ScalScan
+where
+    M: KeyframeMemory + ?Sized,
+    E: Fn(usize) -> bool + Sync + ?Sized,
+{
+    let rows = memory.descriptors().len();
+    let s_e: Vec<[f32; STEPS]> = (0..rows)
+        .into_par_iter()
+        .with_min_len(BLOCK)
+        .map(|r| side.exact_row(memory, r))
+        .collect();
+    let mut hits: Vec<ScalHit> = (0..rows)
+        .into_par_iter()
+        .with_min_len(BLOCK)
+        .filter(|&row| eligible(row))
+        .map(|row| {
+            temporal_hit(params, memory, side.steps(), row, |c, j| {
+                (s_e[c][j], side.scenes[j].compatibility(memory.scene(c)))
+            })
+        })
+        .collect();
+    let null = NullModel::estimate(hits.iter().map(|h| h.score));
+    let eligible = hits.len();
+    top_k(&mut hits, params.top_k);
+    ScalScan {
+        hits,
+        null,
+        eligible,
+    }
+}
+
+/// The code pass with exact re-scoring (see the module doc).
+fn compressed_scan<M, E>(params: &VprParams, side: &QuerySide, memory: &M, eligible: &E) -> ScalScan
+where
+    M: KeyframeMemory + ?Sized,
+    E: Fn(usize) -> bool + Sync + ?Sized,
+{
+    let matrix = memory.descriptors();
+    let rows = matrix.len();
+    let kernel = CodeKernel::detect();
+    let codes: Vec<QueryCode> = side
+        .descriptors
+        .iter()
+        .map(|q| QueryCode::new(q, matrix.codes()))
+        .collect();
+    let steps = side.steps();
+
+    // Per block: upper bounds on its rows' s_e from the codes, then a bound
+    // on S_s without the scene modulation (which only lowers it); chain
+    // rows outside the block (a track's first rows in it) get their bound
+    // on their own. NaN marks an ineligible row. Each block keeps its K
+    // highest.
+    let k = params.top_k;
+    let mut loose = vec![f32::NAN; rows];
+    let per_block: Vec<(usize, Vec<(f32, usize)>)> = loose
+        .par_chunks_mut(BLOCK)
+        .enumerate()
+        .map_init(Default::default, |(upper, bounds), (b, out)| {
+            let first = b * BLOCK;
+            let upper: &mut Vec<[f32; STEPS]> = upper;
+            upper.resize(out.len(), [0.0f32; STEPS]);
+            side.upper_rows(memory, &codes, kernel, first, bounds, upper);
+            let upper_at = |c: usize, j: usize| match c.checked_sub(first) {
+                Some(i) if i < upper.len() => upper[i][j],
+                _ => side.upper_pair(memory, &codes, kernel, c, j),
+            };
+            let mut best = Vec::new();
+            for (i, slot) in out.iter_mut().enumerate() {
+                let row = first + i;
+                if eligible(row) {
+                    let u = temporal_hit(params, memory, steps, row, |c, j| (upper_at(c, j), None));
+                    *slot = u.score;
+                    best.push((u.score, row));
+                }
+            }
+            let count = best.len();
+            keep_highest(&mut best, k);
+            (count, best)
+        })
+        .collect();
+    let eligible_count: usize = per_block.iter().map(|(n, _)| n).sum();
+    if eligible_count == 0 || k == 0 {
+        return ScalScan {
+            hits: Vec::new(),
+            null: NullModel::default(),
+            eligible: eligible_count,
+        };
+    }
+
+    // L: the lowest exact score among the K rows with the highest bounds.
+    let mut seeds: Vec<(f32, usize)> = per_block.iter().flat_map(|(_, b)| b.clone()).collect();
+    keep_highest(&mut seeds, k);
+    let floor = if eligible_count <= k {
+        f32::NEG_INFINITY
+    } else {
+        seeds
+            .iter()
+            .map(|&(_, row)| side.exact_hit(params, memory, row).score)
+            .fold(f32::INFINITY, f32::min)
+    };
+
+    // Every row that can reach L, scored exactly.
+    let mut hits: Vec<ScalHit> = loose
+        .par_iter()
+        .enumerate()
+        .with_min_len(BLOCK)
+        .filter(|&(_, &u)| u >= floor)
+        .filter(|&(row, _)| {
+            let tight = temporal_hit(params, memory, steps, row, |c, j| {
+                (
+                    side.upper_pair(memory, &codes, kernel, c, j),
+                    side.scenes[j].compatibility(memory.scene(c)),
+                )
+            });
+            tight.score >= floor
+        })
+        .map(|(row, _)| side.exact_hit(params, memory, row))
+        .collect();
+    top_k(&mut hits, k);
+
+    // The null model's sample: every stride-th eligible row, scored exactly.
+    let stride = NullModel::stride(eligible_count);
+    let mut start = 0;
+    let offsets: Vec<usize> = per_block
+        .iter()
+        .map(|(n, _)| {
+            let first = start;
+            start += n;
+            first
+        })
+        .collect();
+    let sample_rows: Vec<usize> = loose
+        .par_chunks(BLOCK)
+        .zip(offsets)
+        .enumerate()
+        .flat_map_iter(|(b, (block, first))| {
+            let mut ordinal = first;
+            let mut rows = Vec::new();
+            for (i, u) in block.iter().enumerate() {
+                if !u.is_nan() {
+                    if ordinal % stride == 0 {
+                        rows.push(b * BLOCK + i);
+                    }
+                    ordinal += 1;
+                }
+            }
+            rows.into_iter()
+        })
+        .collect();
+    let location = sample_median(params, side, memory, &codes, kernel, &sample_rows);
+    ScalScan {
+        hits,
+        null: NullModel {
+            location,
+            samples: eligible_count,
+        },
+        eligible: eligible_count,
+    }
+}
+
+/// The median exact `S_s` of the sampled rows, as [`NullModel`] takes it
+/// (the `len/2`-th smallest), scoring exactly only the rows whose bounds
+/// leave it open which side of the median they are on.
+///
+/// With `lo_i ≤ S_i ≤ hi_i` and `m = len/2`, the median `v` lies in
+/// `[lo_(m), hi_(m)]` (the m-th smallest bounds). A row with
+/// `hi_i < lo_(m)` is below `v` and one with `lo_i > hi_(m)` above it, so
+/// `v` is the `(m − #below)`-th smallest exact score of the rest.
+fn sample_median<M: KeyframeMemory + ?Sized>(
+    params: &VprParams,
+    side: &QuerySide,
+    memory: &M,
+    codes: &[QueryCode],
+    kernel: CodeKernel,
+    rows: &[usize],
+) -> f32 {
+    if rows.is_empty() {
+        return 0.0;
+    }
+    let steps = side.steps();
+    let bounds: Vec<(f32, f32)> = rows
+        .par_iter()
+        .map(|&row| {
+            let lo = temporal_hit(params, memory, steps, row, |c, j| {
+                (
+                    side.lower_pair(memory, codes, kernel, c, j),
+                    side.scenes[j].compatibility(memory.scene(c)),
+                )
+            });
+            let hi = temporal_hit(params, memory, steps, row, |c, j| {
+                (
+                    side.upper_pair(memory, codes, kernel, c, j),
+                    side.scenes[j].compatibility(memory.scene(c)),
+                )
+            });
+            (lo.score, hi.score)
+        })
+        .collect();
+    let m = rows.len() / 2;
+    let nth = |mut v: Vec<f32>| {
+        let (_, x, _) = v.select_nth_unstable_by(m, f32::total_cmp);
+        *x
+    };
+    let lo_m = nth(bounds.iter().map(|b| b.0).collect());
+    let hi_m = nth(bounds.iter().map(|b| b.1).collect());
+    let below = bounds.iter().filter(|b| b.1 < lo_m).count();
+    let mut open: Vec<f32> = rows
+        .par_iter()
+        .zip(&bounds)
+        .filter(|(_, b)| b.1 >= lo_m && b.0 <= hi_m)
+        .map(|(&row, _)| side.exact_hit(params, memory, row).score)
+        .collect();
+    let (_, median, _) = open.select_nth_unstable_by(m - below, f32::total_cmp);
+    *median
+}
+
+/// Keeps the `k` highest `(score, row)` pairs (ties: lower row), unordered.
+fn keep_highest(pairs: &mut Vec<(f32, usize)>, k: usize) {
+    if pairs.len() > k && k > 0 {
+        pairs.select_nth_unstable_by(k - 1, |a, b| b.0.total_cmp(&a.0).then(a.1.cmp(&b.1)));
+    }
+    pairs.truncate(k);
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::keyframe::SceneClass;
+    use crate::vpr::memory::VecMemory;
+    use crate::vpr::params::TemporalMode;
+    use crate::vpr::testing::{scene_strategy, unit_vector};
+    use proptest::prelude::*;
+
+    fn run(
+        params: &VprParams,
+        mode: ScanMode,
+        history: &[Features],
+        m: &VecMemory,
+        mask: &[bool],
+    ) -> ScalScan {
+        let params = VprParams {
+            scan: mode,
+            ..params.clone()
+        };
+        let query = ScalQuery {
+            history: history.iter().collect(),
+        };
+        scal_scan(&params, &query, m, &|row| mask[row % mask.len()])
+    }
+
+    /// Descriptors in a few tight clusters, so that many rows score close to
+    /// each other and to the query (the hard case for the bounds).
+    fn clustered(n: usize, dim: usize, seed: u64) -> VecMemory {
+        let mut s = seed | 1;
+        let mut next = move || {
+            s ^= s << 13;
+            s ^= s >> 7;
+            s ^= s << 17;
+            (s >> 40) as f32 / (1u64 << 24) as f32 - 0.5
+        };
+        let centres: Vec<Vec<f32>> = (0..8).map(|_| (0..dim).map(|_| next()).collect()).collect();
+        let mut m = VecMemory::new(dim);
+        for i in 0..n {
+            let c = &centres[i % centres.len()];
+            let v: Vec<f32> = c.iter().map(|x| x + 0.05 * next()).collect();
+            let norm = v.iter().map(|x| x * x).sum::<f32>().sqrt();
+            let scene = vec![SceneClass {
+                class_id: (i % 5) as u32,
+                probability: 0.5 + next(),
+            }];
+            m.push(
+                Features {
+                    descriptor: v.iter().map(|x| x / norm).collect(),
+                    scene,
+                    ..Features::default()
+                },
+                (i % 7 != 0).then(|| i - 1),
+            );
+        }
+        m
+    }
+
+    #[test]
+    fn compressed_equals_exact_past_the_null_sample_cap() {
+        let m = clustered(20_000, 48, 3);
+        let history: Vec<Features> = [5, 4, 3].iter().map(|&r| m.features(r).clone()).collect();
+        let mask: Vec<bool> = (0..13).map(|i| i != 4).collect();
+        for temporal in [TemporalMode::Support, TemporalMode::Average] {
+            for top_k in [1, 25, 300] {
+                let params = VprParams {
+                    temporal,
+                    top_k,
+                    ..VprParams::default()
+                };
+                let exact = run(&params, ScanMode::Exact, &history, &m, &mask);
+                let compressed = run(&params, ScanMode::Compressed, &history, &m, &mask);
+                assert!(exact.eligible > 16_384 && exact.hits.len() == top_k);
+                assert_eq!(compressed, exact, "{temporal:?}, K = {top_k}");
+            }
+        }
+        let auto = run(
+            &VprParams::default(),
+            ScanMode::Auto,
+            &history[..1],
+            &m,
+            &mask,
+        );
+        assert_eq!(
+            auto,
+            run(
+                &VprParams::default(),
+                ScanMode::Exact,
+                &history[..1],
+                &m,
+                &mask
+            )
+        );
+    }
+
+    #[test]
+    fn the_answer_does_not_depend_on_the_number_of_threads() {
+        let m = clustered(9_000, 32, 9);
+        let history: Vec<Features> = [10, 9].iter().map(|&r| m.features(r).clone()).collect();
+        let params = VprParams::default();
+        let single = rayon::ThreadPoolBuilder::new()
+            .num_threads(1)
+            .build()
+            .unwrap();
+        for mode in [ScanMode::Exact, ScanMode::Compressed] {
+            let one = single.install(|| run(&params, mode, &history, &m, &[true]));
+            assert_eq!(one, run(&params, mode, &history, &m, &[true]), "{mode:?}");
+        }
+    }
+
+    fn memory_strategy() -> impl Strategy<Value = VecMemory> {
+        prop::collection::vec(
+            (
+                unit_vector(6),
+                scene_strategy(),
+                any::<prop::sample::Index>(),
+                any::<bool>(),
+            ),
+            0..80,
+        )
+        .prop_map(|rows| {
+            let mut m = VecMemory::new(6);
+            for (i, (d, scene, pred, has_pred)) in rows.into_iter().enumerate() {
+                let pred = (has_pred && i > 0).then(|| pred.index(i));
+                m.push(
+                    Features {
+                        descriptor: d,
+                        scene,
+                        ..Features::default()
+                    },
+                    pred,
+                );
+            }
+            m
+        })
+    }
+
+    proptest! {
+        #[test]
+        fn compressed_equals_exact(
+            m in memory_strategy(),
+            history in prop::collection::vec((unit_vector(6), scene_strategy()), 1..4),
+            mask in prop::collection::vec(any::<bool>(), 1..9),
+            k in 1usize..30,
+            average in any::<bool>(),
+        ) {
+            let history: Vec<Features> = history
+                .into_iter()
+                .map(|(descriptor, scene)| Features { descriptor, scene, ..Features::default() })
+                .collect();
+            let params = VprParams {
+                top_k: k,
+                temporal: if average { TemporalMode::Average } else { TemporalMode::Support },
+                ..VprParams::default()
+            };
+            let exact = run(&params, ScanMode::Exact, &history, &m, &mask);
+            prop_assert_eq!(run(&params, ScanMode::Compressed, &history, &m, &mask), exact);
+        }
+    }
+}

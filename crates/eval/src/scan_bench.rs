@@ -1,0 +1,358 @@
+//! `humem bench scan`: what a SCAL-only query costs on a large store,
+//! against an exact f32 dot-product scan of the same vectors in the same
+//! run.
+//!
+//! The baseline is what faiss `IndexFlatIP` does for one query on one core:
+//! one SIMD dot product per stored row and a top-K heap, nothing else; it
+//! reads four bytes per value, so on a large store it runs at the memory
+//! bandwidth floor. HuMem's query goes through the service's own query path
+//! (`pipeline::query::run`: eligibility, scene modulation, temporal context
+//! over two predecessors, calibration) with the exact pass on one core, and
+//! the compressed pass on one core and on every core. Every answer of the
+//! compressed pass is checked against the exact pass (same keyframes, same
+//! scores).
+//!
+//! The store is synthetic, as a fleet's would be shaped: robots that
+//! revisit places (descriptors clustered around place centres, unit
+//! length), 16 scene classes per keyframe, tracks of consecutive keyframes.
+//! Sizes that do not fit in memory are for a larger machine: 1M × 512 needs
+//! about 3 GB.
+
+use std::collections::BinaryHeap;
+use std::time::{Duration, Instant};
+
+use anyhow::{ensure, Context};
+
+use humem_core::index::Index;
+use humem_core::keyframe::{Features, KeyframeKey, Pose, SceneClass, SemanticKeyframe, SessionKey};
+use humem_core::vpr::kernels::dot_f32_wide;
+use humem_core::vpr::{KeyframeMemory, Layers, ScanMode, Scope, VprParams};
+use humem_server::config::Config;
+use humem_server::pipeline::query::{self, QueryOutcome};
+use humem_server::pipeline::request::{QueryKind, QuerySpec};
+
+/// Options of `humem bench scan`.
+#[derive(Debug, Clone, clap::Args)]
+pub struct ScanBench {
+    /// Store sizes, in keyframes.
+    #[arg(long, value_delimiter = ',', default_values_t = [100_000, 1_000_000])]
+    pub rows: Vec<usize>,
+    /// Descriptor length.
+    #[arg(long, default_value_t = 512)]
+    pub dim: usize,
+    /// Timed queries per store size (each method answers every one).
+    #[arg(long, default_value_t = 15)]
+    pub queries: usize,
+    /// Robots sharing the store.
+    #[arg(long, default_value_t = 8)]
+    pub robots: usize,
+}
+
+/// A xorshift generator: fast, seeded, good enough for synthetic vectors.
+struct Rng(u64);
+
+impl Rng {
+    fn new(seed: u64) -> Rng {
+        Rng(seed.wrapping_mul(0x9E37_79B9_7F4A_7C15) | 1)
+    }
+
+    fn next(&mut self) -> u64 {
+        self.0 ^= self.0 << 13;
+        self.0 ^= self.0 >> 7;
+        self.0 ^= self.0 << 17;
+        self.0
+    }
+
+    /// Uniform in [−0.5, 0.5).
+    fn centred(&mut self) -> f32 {
+        (self.next() >> 40) as f32 / (1u64 << 24) as f32 - 0.5
+    }
+}
+
+/// Keyframes per place visit, on average: a robot passes a place in a few
+/// keyframes and comes back to it later.
+const KEYFRAMES_PER_PLACE: usize = 20;
+
+/// The synthetic store: keyframe `i` of robot `i % robots` sees place
+/// `place_of(i)`, its descriptor that place's centre plus noise.
+fn store(rows: usize, dim: usize, robots: usize) -> Index {
+    let places = (rows / KEYFRAMES_PER_PLACE).max(1) as u64;
+    let mut index = Index::new(dim);
+    let mut noise = Rng::new(1);
+    let mut descriptor = vec![0.0f32; dim];
+    for i in 0..rows {
+        let robot = i % robots;
+        let step = (i / robots) as u64;
+        // Each robot walks through places in runs of 4 keyframes.
+        let place = Rng::new(step / 4 * 31 + robot as u64).next() % places;
+        let mut centre = Rng::new(place + 7);
+        for v in descriptor.iter_mut() {
+            *v = centre.centred() + 0.6 * noise.centred();
+        }
+        let norm = descriptor.iter().map(|v| v * v).sum::<f32>().sqrt();
+        descriptor.iter_mut().for_each(|v| *v /= norm);
+        index.upsert(SemanticKeyframe {
+            key: KeyframeKey {
+                robot_id: format!("robot-{robot}"),
+                session_id: "session".into(),
+                keyframe_id: step,
+            },
+            frame_id: 3 * step,
+            timestamp: step as f64 * 0.2,
+            map_id: 0,
+            pose: Pose::default(),
+            features: Features {
+                descriptor: descriptor.clone(),
+                scene: (0..16)
+                    .map(|k| SceneClass {
+                        class_id: ((place as usize + 3 * k) % 365) as u32,
+                        probability: 0.3 / (1.0 + k as f32),
+                    })
+                    .collect(),
+                objects: Vec::new(),
+                appearance: Vec::new(),
+            },
+        });
+    }
+    index
+}
+
+/// The baseline: one query's exact inner products with every row and the
+/// top `k`, the way a flat inner-product index answers.
+fn flat_scan(index: &Index, query: &[f32], k: usize) -> Vec<(f32, usize)> {
+    let matrix = index.descriptors();
+    // Min-heap on score of the best k so far (scores are negated).
+    let mut best: BinaryHeap<(std::cmp::Reverse<OrderedScore>, usize)> = BinaryHeap::new();
+    for row in 0..matrix.len() {
+        let score = dot_f32_wide(query, matrix.row(row));
+        if best.len() < k {
+            best.push((std::cmp::Reverse(OrderedScore(score)), row));
+        } else if let Some(worst) = best.peek() {
+            if score > worst.0 .0 .0 {
+                best.pop();
+                best.push((std::cmp::Reverse(OrderedScore(score)), row));
+            }
+        }
+    }
+    best.into_iter().map(|(s, row)| (s.0 .0, row)).collect()
+}
+
+/// An f32 ordered by `total_cmp`, for the heap.
+#[derive(Debug, Clone, Copy, PartialEq)]
+struct OrderedScore(f32);
+
+impl Eq for OrderedScore {}
+
+impl PartialOrd for OrderedScore {
+    fn partial_cmp(&self, other: &Self) -> Option<std::cmp::Ordering> {
+        Some(self.cmp(other))
+    }
+}
+
+impl Ord for OrderedScore {
+    fn cmp(&self, other: &Self) -> std::cmp::Ordering {
+        self.0.total_cmp(&other.0)
+    }
+}
+
+/// A loop-closure query for stored keyframe `keyframe_id` of robot 0: its
+/// stored features and two predecessors, every map, SCAL only.
+fn spec(keyframe_id: u64, top_n: usize) -> QuerySpec {
+    QuerySpec {
+        session: SessionKey {
+            robot_id: "robot-0".into(),
+            session_id: "session".into(),
+        },
+        map_id: None,
+        frame_id: None,
+        keyframe_id: Some(keyframe_id),
+        observation: None,
+        predecessor_ids: Vec::new(),
+        scope: Scope::AllMaps,
+        min_frame_gap: 30,
+        top_n,
+        threshold: 0.0,
+        layers: Layers::SCAL,
+        kind: QueryKind::LoopClosure,
+    }
+}
+
+/// What one method's answers look like, for comparing with the exact pass.
+fn answer(outcome: &QueryOutcome) -> Vec<(KeyframeKey, f32)> {
+    outcome
+        .candidates
+        .iter()
+        .map(|c| (c.key.clone(), c.score))
+        .collect()
+}
+
+fn median_ms(samples: &mut [Duration]) -> f64 {
+    samples.sort();
+    samples
+        .get(samples.len() / 2)
+        .map_or(0.0, |d| d.as_secs_f64() * 1e3)
+}
+
+/// One store size's figures.
+struct Row {
+    rows: usize,
+    build: Duration,
+    flat: f64,
+    exact: f64,
+    compressed_one: f64,
+    compressed_all: f64,
+    identical: usize,
+    queries: usize,
+}
+
+/// Runs the benchmark and prints the table.
+pub fn scan(config: Config, args: ScanBench) -> anyhow::Result<()> {
+    ensure!(args.queries > 0, "--queries must be at least 1");
+    ensure!(args.robots > 0, "--robots must be at least 1");
+    ensure!(args.dim > 0, "--dim must be at least 1");
+    let threads = rayon::current_num_threads();
+    let one_core = rayon::ThreadPoolBuilder::new()
+        .num_threads(1)
+        .build()
+        .context("building a one-thread pool")?;
+    let params = |scan| VprParams {
+        scan,
+        ..config.vpr.clone()
+    };
+    let (exact, compressed) = (params(ScanMode::Exact), params(ScanMode::Compressed));
+    let k = config.vpr.top_k;
+    let mut table = Vec::new();
+    for &rows in &args.rows {
+        eprintln!("bench scan: building a store of {rows} x {}", args.dim);
+        let started = Instant::now();
+        let index = store(rows, args.dim, args.robots);
+        let build = started.elapsed();
+        let per_robot = (rows / args.robots) as u64;
+        ensure!(per_robot > 2, "--rows too small for {} robots", args.robots);
+        let mut rng = Rng::new(99);
+        let ids: Vec<u64> = (0..args.queries + 2)
+            .map(|_| 2 + rng.next() % (per_robot - 2))
+            .collect();
+        let (mut flat, mut exact_t, mut one_t, mut all_t) = (vec![], vec![], vec![], vec![]);
+        let mut identical = 0;
+        // The first two queries warm caches and are not timed.
+        for (n, &id) in ids.iter().enumerate() {
+            let spec = spec(id, k);
+            let key = spec.session.keyframe(id);
+            let row = index.row_of(&key).context("query keyframe stored")?;
+            let q = index.descriptor(row).to_vec();
+            let timed = |f: &mut dyn FnMut()| {
+                let t = Instant::now();
+                f();
+                t.elapsed()
+            };
+            let mut top = Vec::new();
+            let flat_time = one_core.install(|| timed(&mut || top = flat_scan(&index, &q, k)));
+            std::hint::black_box(&top);
+            let mut outcomes = Vec::new();
+            for (pool_one, p) in [(true, &exact), (true, &compressed), (false, &compressed)] {
+                let mut outcome = None;
+                let mut run = || outcome = Some(query::run(&index, p, &spec));
+                let t = if pool_one {
+                    one_core.install(|| timed(&mut run))
+                } else {
+                    timed(&mut run)
+                };
+                let outcome = outcome
+                    .context("query ran")?
+                    .map_err(|e| anyhow::anyhow!("query {id}: {e:?}"))?;
+                outcomes.push((t, answer(&outcome)));
+            }
+            if n < 2 {
+                continue;
+            }
+            flat.push(flat_time);
+            exact_t.push(outcomes[0].0);
+            one_t.push(outcomes[1].0);
+            all_t.push(outcomes[2].0);
+            if outcomes[1].1 == outcomes[0].1 && outcomes[2].1 == outcomes[0].1 {
+                identical += 1;
+            }
+        }
+        table.push(Row {
+            rows,
+            build,
+            flat: median_ms(&mut flat),
+            exact: median_ms(&mut exact_t),
+            compressed_one: median_ms(&mut one_t),
+            compressed_all: median_ms(&mut all_t),
+            identical,
+            queries: args.queries,
+        });
+        drop(index);
+    }
+    println!(
+        "SCAL-only query, {}-d, top {k}, median of {} queries; ratios against the exact f32 scan on 1 core",
+        args.dim, args.queries
+    );
+    println!(
+        "| keyframes | exact f32 scan, 1 core | HuMem exact, 1 core | HuMem compressed, 1 core | HuMem compressed, {threads} cores | same answers as exact | store built in |"
+    );
+    println!("| --- | --- | --- | --- | --- | --- | --- |");
+    for r in &table {
+        println!(
+            "| {} | {:.1} ms | {:.1} ms ({:.2}x) | {:.1} ms ({:.2}x) | {:.1} ms ({:.2}x) | {}/{} | {:.0} s |",
+            r.rows,
+            r.flat,
+            r.exact,
+            r.exact / r.flat,
+            r.compressed_one,
+            r.compressed_one / r.flat,
+            r.compressed_all,
+            r.compressed_all / r.flat,
+            r.identical,
+            r.queries,
+            r.build.as_secs_f64()
+        );
+    }
+    Ok(())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn the_flat_scan_finds_the_best_rows() {
+        let index = store(2_000, 32, 4);
+        let q = index.descriptor(10).to_vec();
+        let top = flat_scan(&index, &q, 5);
+        assert_eq!(top.len(), 5);
+        let mut all: Vec<(f32, usize)> = (0..index.len())
+            .map(|r| (dot_f32_wide(&q, index.descriptor(r)), r))
+            .collect();
+        all.sort_by(|a, b| b.0.total_cmp(&a.0));
+        let mut top_rows: Vec<usize> = top.iter().map(|t| t.1).collect();
+        let mut best_rows: Vec<usize> = all[..5].iter().map(|t| t.1).collect();
+        top_rows.sort();
+        best_rows.sort();
+        assert_eq!(top_rows, best_rows);
+        assert!(
+            top.iter().any(|&(_, r)| r == 10),
+            "a row is its own best match"
+        );
+    }
+
+    #[test]
+    fn the_compressed_query_answers_as_the_exact_one_on_a_clustered_store() {
+        let index = store(40_000, 64, 8);
+        for id in [100, 2_000, 4_000] {
+            let spec = spec(id, 25);
+            let run = |scan| {
+                let params = VprParams {
+                    scan,
+                    ..VprParams::default()
+                };
+                answer(&query::run(&index, &params, &spec).unwrap())
+            };
+            let exact = run(ScanMode::Exact);
+            assert_eq!(exact.len(), 25);
+            assert_eq!(run(ScanMode::Compressed), exact, "query {id}");
+        }
+    }
+}
