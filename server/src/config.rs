@@ -107,6 +107,17 @@ pub struct QueryDefaults {
     /// Queries of one robot, session and kind waiting behind the running
     /// one; a newer query supersedes the oldest waiting (latest wins).
     pub pending_per_client: usize,
+    /// Threads one query's scan is split across, shared by all queries
+    /// (0: every core). Fewer leaves cores to the store writer and the
+    /// perception models under full query load.
+    pub scan_threads: usize,
+    /// Scans that run at once, across all robots (at least 1); the rest
+    /// wait their turn in arrival order.
+    pub concurrent_scans: usize,
+    /// Longest a query waits for a scan slot, in milliseconds; a query
+    /// whose expected wait is longer (or longer than its gRPC deadline) is
+    /// refused at once with RESOURCE_EXHAUSTED and a `retry-after-ms` hint.
+    pub max_wait_ms: u64,
 }
 
 impl Default for QueryDefaults {
@@ -114,6 +125,9 @@ impl Default for QueryDefaults {
         QueryDefaults {
             min_frame_gap: 100,
             pending_per_client: 1,
+            scan_threads: 0,
+            concurrent_scans: 2,
+            max_wait_ms: 250,
         }
     }
 }

@@ -129,6 +129,21 @@ pub static QUERIES_SUPERSEDED: LazyLock<IntCounterVec> = LazyLock::new(|| {
     )
 });
 
+/// Queries refused because the scans ahead would outlast their wait, by
+/// query kind.
+pub static QUERIES_REFUSED: LazyLock<IntCounterVec> = LazyLock::new(|| {
+    register(
+        IntCounterVec::new(
+            Opts::new(
+                "humem_queries_refused_total",
+                "queries refused with RESOURCE_EXHAUSTED: the expected wait for a scan exceeded what the query could wait",
+            ),
+            &["kind"],
+        )
+        .unwrap(),
+    )
+});
+
 /// Keyframes stored by Insert and InsertBatch.
 pub static KEYFRAMES_INSERTED: LazyLock<IntCounter> = LazyLock::new(|| {
     register(IntCounter::new("humem_keyframes_inserted_total", "keyframes stored").unwrap())
@@ -286,6 +301,7 @@ pub fn init() {
     }
     for kind in ["loop_closure", "relocalisation"] {
         QUERIES_SUPERSEDED.with_label_values(&[kind]);
+        QUERIES_REFUSED.with_label_values(&[kind]);
     }
     LazyLock::force(&RPC_REQUESTS);
     LazyLock::force(&RPC_DURATION);
@@ -293,6 +309,7 @@ pub fn init() {
     LazyLock::force(&BATCH_SIZE);
     LazyLock::force(&QUEUE_DEPTH);
     LazyLock::force(&QUERIES_SUPERSEDED);
+    LazyLock::force(&QUERIES_REFUSED);
     LazyLock::force(&KEYFRAMES_INSERTED);
     LazyLock::force(&CANDIDATES);
     LazyLock::force(&CANDIDATE_SCORE);

@@ -10,6 +10,7 @@ use crate::api::validate::Limits;
 use crate::api::PlaceRecognitionService;
 use crate::config::Config;
 use crate::metrics;
+use crate::pipeline::admission::QueryAdmission;
 use crate::pipeline::latest_wins::LatestWins;
 use crate::proto::place_recognition_server::PlaceRecognitionServer;
 use humem_perception::Perception;
@@ -23,6 +24,15 @@ pub async fn serve(config: Config) -> anyhow::Result<()> {
             config.store.data_dir.display()
         )
     })?;
+    // One pool for every query's scan (rayon's global pool): concurrent
+    // queries share its threads instead of each taking every core.
+    if config.query.scan_threads > 0 {
+        rayon::ThreadPoolBuilder::new()
+            .num_threads(config.query.scan_threads)
+            .thread_name(|i| format!("humem-scan-{i}"))
+            .build_global()
+            .context("starting the scan threads (query.scan_threads)")?;
+    }
     let store = Store::open_observed(
         &config.store.data_dir,
         config.store.descriptor_dim,
@@ -57,6 +67,10 @@ pub async fn serve(config: Config) -> anyhow::Result<()> {
         limits,
         perception,
         LatestWins::new(config.query.pending_per_client),
+        QueryAdmission::new(
+            config.query.concurrent_scans,
+            std::time::Duration::from_millis(config.query.max_wait_ms),
+        ),
     );
     let max = config.server.max_message_bytes;
     let api = PlaceRecognitionServer::new(service)

@@ -203,6 +203,16 @@ struct Row {
     compressed_all: f64,
     identical: usize,
     queries: usize,
+    /// Resident memory the store added, per keyframe (Linux only).
+    per_keyframe: Option<f64>,
+}
+
+/// This process's resident set size, from `/proc/self/status`.
+fn resident_bytes() -> Option<u64> {
+    let status = std::fs::read_to_string("/proc/self/status").ok()?;
+    let line = status.lines().find(|l| l.starts_with("VmRSS:"))?;
+    let kib: u64 = line.split_whitespace().nth(1)?.parse().ok()?;
+    Some(kib * 1024)
 }
 
 /// Runs the benchmark and prints the table.
@@ -224,9 +234,13 @@ pub fn scan(config: Config, args: ScanBench) -> anyhow::Result<()> {
     let mut table = Vec::new();
     for &rows in &args.rows {
         eprintln!("bench scan: building a store of {rows} x {}", args.dim);
+        let resident_before = resident_bytes();
         let started = Instant::now();
         let index = store(rows, args.dim, args.robots);
         let build = started.elapsed();
+        let per_keyframe = resident_bytes()
+            .zip(resident_before)
+            .map(|(after, before)| after.saturating_sub(before) as f64 / rows as f64);
         let per_robot = (rows / args.robots) as u64;
         ensure!(per_robot > 2, "--rows too small for {} robots", args.robots);
         let mut rng = Rng::new(99);
@@ -283,6 +297,7 @@ pub fn scan(config: Config, args: ScanBench) -> anyhow::Result<()> {
             compressed_all: median_ms(&mut all_t),
             identical,
             queries: args.queries,
+            per_keyframe,
         });
         drop(index);
     }
@@ -291,12 +306,12 @@ pub fn scan(config: Config, args: ScanBench) -> anyhow::Result<()> {
         args.dim, args.queries
     );
     println!(
-        "| keyframes | exact f32 scan, 1 core | HuMem exact, 1 core | HuMem compressed, 1 core | HuMem compressed, {threads} cores | same answers as exact | store built in |"
+        "| keyframes | exact f32 scan, 1 core | HuMem exact, 1 core | HuMem compressed, 1 core | HuMem compressed, {threads} cores | same answers as exact | resident per keyframe | store built in |"
     );
-    println!("| --- | --- | --- | --- | --- | --- | --- |");
+    println!("| --- | --- | --- | --- | --- | --- | --- | --- |");
     for r in &table {
         println!(
-            "| {} | {:.1} ms | {:.1} ms ({:.2}x) | {:.1} ms ({:.2}x) | {:.1} ms ({:.2}x) | {}/{} | {:.0} s |",
+            "| {} | {:.1} ms | {:.1} ms ({:.2}x) | {:.1} ms ({:.2}x) | {:.1} ms ({:.2}x) | {}/{} | {} | {:.0} s |",
             r.rows,
             r.flat,
             r.exact,
@@ -307,6 +322,10 @@ pub fn scan(config: Config, args: ScanBench) -> anyhow::Result<()> {
             r.compressed_all / r.flat,
             r.identical,
             r.queries,
+            r.per_keyframe.map_or("-".to_string(), |b| format!(
+                "{b:.0} B ({:.2}x the f32 descriptor)",
+                b / (4 * args.dim) as f64
+            )),
             r.build.as_secs_f64()
         );
     }

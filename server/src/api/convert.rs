@@ -220,6 +220,15 @@ impl From<PipelineError> for Status {
             PipelineError::Store(e) => store_status(e),
             PipelineError::Query(e) => e.into(),
             PipelineError::Task(_) => Status::internal(e.to_string()),
+            PipelineError::Busy(busy) => {
+                let mut status = Status::resource_exhausted(busy.to_string());
+                let retry = u32::try_from(busy.expected.as_millis()).unwrap_or(u32::MAX);
+                status.metadata_mut().insert(
+                    "retry-after-ms",
+                    tonic::metadata::MetadataValue::from(retry.max(1)),
+                );
+                status
+            }
         }
     }
 }

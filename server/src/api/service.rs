@@ -11,6 +11,7 @@ use tonic::{Request, Response, Status};
 
 use super::convert;
 use super::validate::{self, InvalidField, Limits, Observation};
+use crate::pipeline::admission::QueryAdmission;
 use crate::pipeline::latest_wins::LatestWins;
 use crate::pipeline::{Pipeline, QueryAnswer};
 use crate::proto;
@@ -34,9 +35,10 @@ impl PlaceRecognitionService {
         limits: Limits,
         perception: Option<Perception>,
         scheduler: Arc<LatestWins>,
+        admission: Arc<QueryAdmission>,
     ) -> Self {
         PlaceRecognitionService {
-            pipeline: Pipeline::new(store, params, perception, scheduler),
+            pipeline: Pipeline::new(store, params, perception, scheduler, admission),
             limits,
         }
     }
@@ -86,6 +88,11 @@ impl PlaceRecognition for PlaceRecognitionService {
         &self,
         request: Request<proto::QueryRequest>,
     ) -> Result<Response<proto::QueryResponse>, Status> {
+        let deadline = request
+            .metadata()
+            .get("grpc-timeout")
+            .and_then(|v| v.to_str().ok())
+            .and_then(crate::pipeline::admission::grpc_timeout);
         let spec = validate::query(request.into_inner(), &self.limits)?;
         let span = tracing::Span::current();
         span.record("robot", spec.session.robot_id.as_str());
@@ -96,7 +103,7 @@ impl PlaceRecognition for PlaceRecognitionService {
         if let Some(frame) = spec.frame_id {
             span.record("frame", frame);
         }
-        let outcome = match self.pipeline.query(spec).await? {
+        let outcome = match self.pipeline.query(spec, deadline).await? {
             QueryAnswer::Superseded => {
                 return Ok(Response::new(proto::QueryResponse {
                     status: proto::QueryStatus::Superseded as i32,

@@ -12,6 +12,7 @@
 //! - [`query`]: one query over the index, end to end, synchronous;
 //! - [`latest_wins`]: one pending query per client and kind, newest wins.
 
+pub mod admission;
 pub mod latest_wins;
 pub mod query;
 pub mod request;
@@ -25,6 +26,7 @@ use humem_perception::{Perception, PerceptionError};
 use humem_store::{Mutation, MutationOutcome, Store, StoreError};
 
 use crate::metrics;
+use admission::{Busy, QueryAdmission};
 use latest_wins::{Admission, LatestWins, SlotKey};
 use query::{QueryError, QueryOutcome};
 use request::{InvalidField, Observation, PendingKeyframe, QuerySpec};
@@ -59,6 +61,9 @@ pub enum PipelineError {
     /// The blocking task of a query failed (panicked or was cancelled).
     #[error("query task failed: {0}")]
     Task(String),
+    /// Too many scans ahead to answer within what the query can wait.
+    #[error(transparent)]
+    Busy(#[from] Busy),
 }
 
 /// Features of an observation and the time perception spent on them.
@@ -93,6 +98,8 @@ pub struct Pipeline {
     perception: Option<Perception>,
     /// Latest-wins slots of the queries.
     scheduler: Arc<LatestWins>,
+    /// Scan slots shared by all robots.
+    admission: Arc<QueryAdmission>,
 }
 
 impl Pipeline {
@@ -102,12 +109,14 @@ impl Pipeline {
         params: VprParams,
         perception: Option<Perception>,
         scheduler: Arc<LatestWins>,
+        admission: Arc<QueryAdmission>,
     ) -> Self {
         Pipeline {
             store,
             params: Arc::new(params),
             perception,
             scheduler,
+            admission,
         }
     }
 
@@ -153,9 +162,16 @@ impl Pipeline {
     }
 
     /// Answers a query: waits for the client's turn (a newer query may take
-    /// its place), perceives its image if it sent one, then ranks on the
-    /// blocking pool so that a large scan never stalls the async runtime.
-    pub async fn query(&self, mut spec: QuerySpec) -> Result<QueryAnswer, PipelineError> {
+    /// its place), perceives its image if it sent one, waits for a scan
+    /// slot (or is refused if the wait would outlast `deadline`, what the
+    /// caller will wait), then ranks on the blocking pool so that a large
+    /// scan never stalls the async runtime.
+    pub async fn query(
+        &self,
+        mut spec: QuerySpec,
+        deadline: Option<Duration>,
+    ) -> Result<QueryAnswer, PipelineError> {
+        let arrived = std::time::Instant::now();
         let kind = spec.kind.label();
         let slot = SlotKey {
             robot_id: spec.session.robot_id.clone(),
@@ -176,9 +192,15 @@ impl Pipeline {
             spec.observation = Some(Observation::Features(features));
             perception_timings = timings;
         }
+        let left = deadline.map(|d| d.saturating_sub(arrived.elapsed()));
+        let slot = self.admission.admit(left).await.inspect_err(|busy| {
+            tracing::debug!(%busy, "query refused");
+            metrics::QUERIES_REFUSED.with_label_values(&[kind]).inc();
+        })?;
         let index = self.store.index_handle();
         let params = self.params.clone();
         let mut outcome = tokio::task::spawn_blocking(move || {
+            let _slot = slot;
             let index = index.read();
             query::run(&index, &params, &spec)
         })

@@ -61,6 +61,8 @@ struct Tally {
     ok: u64,
     superseded: u64,
     errors: BTreeMap<String, u64>,
+    /// The first message seen for each error code, to tell causes apart.
+    first_message: BTreeMap<String, String>,
 }
 
 impl Tally {
@@ -70,6 +72,7 @@ impl Tally {
             ok: 0,
             superseded: 0,
             errors: BTreeMap::new(),
+            first_message: BTreeMap::new(),
         }
     }
 
@@ -79,10 +82,11 @@ impl Tally {
             Ok(true) => self.ok += 1,
             Ok(false) => self.superseded += 1,
             Err(status) => {
-                *self
-                    .errors
-                    .entry(format!("{:?}", status.code()))
-                    .or_insert(0) += 1
+                let code = format!("{:?}", status.code());
+                self.first_message
+                    .entry(code.clone())
+                    .or_insert_with(|| status.message().to_string());
+                *self.errors.entry(code).or_insert(0) += 1
             }
         }
     }
@@ -315,7 +319,8 @@ pub async fn run(args: LoadArgs) -> anyhow::Result<()> {
             t.latency.max() as f64 / 1000.0
         );
         for (code, n) in &t.errors {
-            println!("{:<8} error {code}: {n}", "");
+            let message = t.first_message.get(code).map_or("", String::as_str);
+            println!("{:<8} error {code}: {n} (first: {message:?})", "");
         }
     }
     if let Some(pid) = args.server_pid {

@@ -1,0 +1,211 @@
+//! Admission of queries across all robots.
+//!
+//! Latest-wins ([`super::latest_wins`]) keeps one robot from queueing
+//! behind itself, but a fleet of robots can still ask for more scans than
+//! the cores can run. Every scan already uses every scan thread, so running
+//! more of them at once only makes each slower, and it holds the index's
+//! read lock longer, which the store writer must wait out before it can
+//! publish an insert. So at most `concurrent` scans run; the rest wait in
+//! arrival order. A query whose expected wait (the scans ahead of it times
+//! the recent scan time) is longer than it can wait (the configured budget,
+//! or the caller's deadline if shorter) is refused at once with
+//! RESOURCE_EXHAUSTED and a retry hint, rather than answered after its
+//! caller has given up.
+
+use std::sync::atomic::{AtomicU64, AtomicUsize, Ordering};
+use std::sync::Arc;
+use std::time::{Duration, Instant};
+
+use tokio::sync::{OwnedSemaphorePermit, Semaphore};
+
+/// The shared admission state.
+#[derive(Debug)]
+pub struct QueryAdmission {
+    slots: Arc<Semaphore>,
+    concurrent: usize,
+    /// Queries waiting for a slot.
+    waiting: AtomicUsize,
+    /// Recent scan time, an exponentially weighted mean, in microseconds.
+    scan_micros: AtomicU64,
+    budget: Duration,
+}
+
+/// A query that may not wait for its scan.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, thiserror::Error)]
+#[error(
+    "server busy: {ahead} queries ahead, expected wait {} ms exceeds what this query can wait ({} ms); retry after {} ms",
+    expected.as_millis(), budget.as_millis(), expected.as_millis()
+)]
+pub struct Busy {
+    /// Scans running or waiting when the query arrived.
+    pub ahead: usize,
+    /// How long it would have waited.
+    pub expected: Duration,
+    /// How long it could wait.
+    pub budget: Duration,
+}
+
+/// The right to run one scan; dropping it records the scan's time and lets
+/// the next query in.
+#[derive(Debug)]
+pub struct ScanSlot {
+    admission: Arc<QueryAdmission>,
+    started: Instant,
+    _permit: OwnedSemaphorePermit,
+}
+
+impl Drop for ScanSlot {
+    fn drop(&mut self) {
+        self.admission.record(self.started.elapsed());
+    }
+}
+
+/// Decrements the waiting count however the wait ends (a caller that goes
+/// away drops the future).
+struct Waiting<'a>(&'a AtomicUsize);
+
+impl Drop for Waiting<'_> {
+    fn drop(&mut self) {
+        self.0.fetch_sub(1, Ordering::Relaxed);
+    }
+}
+
+impl QueryAdmission {
+    /// At most `concurrent` (≥ 1) scans at once; queries wait at most
+    /// `budget` for theirs.
+    pub fn new(concurrent: usize, budget: Duration) -> Arc<QueryAdmission> {
+        let concurrent = concurrent.max(1);
+        Arc::new(QueryAdmission {
+            slots: Arc::new(Semaphore::new(concurrent)),
+            concurrent,
+            waiting: AtomicUsize::new(0),
+            scan_micros: AtomicU64::new(0),
+            budget,
+        })
+    }
+
+    /// How long a query arriving now would wait for a slot.
+    fn expected_wait(&self, ahead: usize) -> Duration {
+        let rounds = (ahead + 1)
+            .saturating_sub(self.concurrent)
+            .div_ceil(self.concurrent);
+        Duration::from_micros(self.scan_micros.load(Ordering::Relaxed) * rounds as u64)
+    }
+
+    /// Waits for a scan slot, or refuses at once when the wait would be
+    /// longer than the budget or `deadline` (what the caller will wait).
+    pub async fn admit(self: &Arc<Self>, deadline: Option<Duration>) -> Result<ScanSlot, Busy> {
+        let running = self.concurrent - self.slots.available_permits();
+        let ahead = running + self.waiting.load(Ordering::Relaxed);
+        let expected = self.expected_wait(ahead);
+        let budget = deadline.map_or(self.budget, |d| d.min(self.budget));
+        if expected > budget {
+            return Err(Busy {
+                ahead,
+                expected,
+                budget,
+            });
+        }
+        self.waiting.fetch_add(1, Ordering::Relaxed);
+        let waiting = Waiting(&self.waiting);
+        let permit = self
+            .slots
+            .clone()
+            .acquire_owned()
+            .await
+            .expect("the admission semaphore is never closed");
+        drop(waiting);
+        Ok(ScanSlot {
+            admission: self.clone(),
+            started: Instant::now(),
+            _permit: permit,
+        })
+    }
+
+    /// Folds one scan's time into the recent mean (weight 1/4).
+    fn record(&self, took: Duration) {
+        let took = took.as_micros().min(u128::from(u64::MAX)) as u64;
+        let _ = self
+            .scan_micros
+            .fetch_update(Ordering::Relaxed, Ordering::Relaxed, |mean| {
+                Some(if mean == 0 {
+                    took
+                } else {
+                    (3 * mean + took) / 4
+                })
+            });
+    }
+}
+
+/// The caller's deadline from a `grpc-timeout` header value (`"250m"`:
+/// an integer and a unit, H M S m u n), or `None` when absent or malformed.
+pub fn grpc_timeout(value: &str) -> Option<Duration> {
+    let (digits, unit) = value.split_at(value.len().checked_sub(1)?);
+    let n: u64 = digits.parse().ok()?;
+    Some(match unit {
+        "H" => Duration::from_secs(n.checked_mul(3600)?),
+        "M" => Duration::from_secs(n.checked_mul(60)?),
+        "S" => Duration::from_secs(n),
+        "m" => Duration::from_millis(n),
+        "u" => Duration::from_micros(n),
+        "n" => Duration::from_nanos(n),
+        _ => return None,
+    })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn timeouts_parse_as_grpc_writes_them() {
+        assert_eq!(grpc_timeout("250m"), Some(Duration::from_millis(250)));
+        assert_eq!(grpc_timeout("3S"), Some(Duration::from_secs(3)));
+        assert_eq!(grpc_timeout("2M"), Some(Duration::from_secs(120)));
+        assert_eq!(grpc_timeout("1H"), Some(Duration::from_secs(3600)));
+        assert_eq!(grpc_timeout("5u"), Some(Duration::from_micros(5)));
+        assert_eq!(grpc_timeout("7n"), Some(Duration::from_nanos(7)));
+        for bad in ["", "m", "12", "12x", "-1m", "1.5S"] {
+            assert_eq!(grpc_timeout(bad), None, "{bad:?}");
+        }
+    }
+
+    #[tokio::test]
+    async fn queries_beyond_the_budget_are_refused_at_once() {
+        let admission = QueryAdmission::new(1, Duration::from_millis(100));
+        // Recent scans take 80 ms (the first time recorded is the mean).
+        admission.record(Duration::from_millis(80));
+        let running = admission.admit(None).await.unwrap();
+        // One ahead: 80 ms to wait, within 100 ms.
+        let second = {
+            let a = admission.clone();
+            tokio::spawn(async move { a.admit(None).await.map(|_| ()) })
+        };
+        tokio::task::yield_now().await;
+        while admission.waiting.load(Ordering::Relaxed) == 0 {
+            tokio::task::yield_now().await;
+        }
+        // Two ahead: 160 ms > 100 ms: refused, saying why.
+        let busy = admission.admit(None).await.unwrap_err();
+        assert_eq!(busy.ahead, 2);
+        assert!(busy.expected >= Duration::from_millis(150), "{busy:?}");
+        assert!(busy.to_string().contains("retry after"));
+        // Two near-instant scans bring the mean to 45 ms; a caller with a
+        // 20 ms deadline is refused even one ahead.
+        drop(running);
+        second.await.unwrap().unwrap();
+        let running = admission.admit(None).await.unwrap();
+        let short = admission
+            .admit(Some(Duration::from_millis(20)))
+            .await
+            .unwrap_err();
+        assert_eq!(short.budget, Duration::from_millis(20));
+        drop(running);
+        // The waiting count returns to zero when a waiter gives up.
+        let hold = admission.admit(None).await.unwrap();
+        let gave_up = tokio::time::timeout(Duration::from_millis(10), admission.admit(None)).await;
+        assert!(gave_up.is_err());
+        assert_eq!(admission.waiting.load(Ordering::Relaxed), 0);
+        drop(hold);
+    }
+}
