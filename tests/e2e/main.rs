@@ -5,6 +5,7 @@
 mod harness;
 mod scenes;
 
+mod admission;
 mod cli;
 mod detector;
 mod durability;

@@ -208,7 +208,7 @@ pub(crate) const STEPS: usize = 3;
 mod tests {
     use super::*;
     use crate::vpr::memory::VecMemory;
-    use crate::vpr::testing::{close, features, scene_strategy, unit_vector};
+    use crate::vpr::testing::{close, features, memory_strategy, scene_strategy, unit_vector};
     use proptest::prelude::*;
 
     /// SCAL for one row written the plain way, one `cosine` per pair, as
@@ -462,40 +462,10 @@ mod tests {
         assert_eq!(rows, vec![1, 2]);
     }
 
-    /// A random store: unit descriptors, random scene lists, and for each
-    /// row a predecessor among the earlier rows (or none).
-    fn memory_strategy() -> impl Strategy<Value = VecMemory> {
-        prop::collection::vec(
-            (
-                unit_vector(4),
-                scene_strategy(),
-                any::<prop::sample::Index>(),
-                any::<bool>(),
-            ),
-            0..60,
-        )
-        .prop_map(|rows| {
-            let mut m = VecMemory::new(4);
-            for (i, (d, scene, pred, has_pred)) in rows.into_iter().enumerate() {
-                let pred = (has_pred && i > 0).then(|| pred.index(i));
-                m.push(
-                    Features {
-                        descriptor: d,
-                        scene,
-                        objects: vec![],
-                        appearance: vec![],
-                    },
-                    pred,
-                );
-            }
-            m
-        })
-    }
-
     proptest! {
         #[test]
         fn top_k_equals_brute_force(
-            m in memory_strategy(),
+            m in memory_strategy(4, 60),
             history in prop::collection::vec((unit_vector(4), scene_strategy()), 1..4),
             mask in prop::collection::vec(any::<bool>(), 60),
             k in 1usize..30,
@@ -520,7 +490,7 @@ mod tests {
 
         #[test]
         fn scores_are_in_unit_interval(
-            m in memory_strategy(),
+            m in memory_strategy(4, 60),
             history in prop::collection::vec((unit_vector(4), scene_strategy()), 1..4),
         ) {
             let feats: Vec<Features> = history

@@ -207,7 +207,7 @@ impl<'a> QuerySide<'a> {
         }
         // The relative margin covers the scene modulation's rounding: the
         // loose bound skips it, and (1 + λc)/(1 + λ) at c = 1 can round a
-        // hair above 1. [`QuerySide::upper_pair`] does the same for one.
+        // hair above 1. [`QuerySide::pair_bounds`] does the same for one.
         for (i, (o, b)) in out.iter_mut().zip(bounds.iter()).enumerate() {
             *o = std::array::from_fn(|j| {
                 let (estimate, bound) = b[j];
@@ -216,39 +216,22 @@ impl<'a> QuerySide<'a> {
         }
     }
 
-    /// An upper bound on `s_e(Q_{t−j}, row)` from the codes, as
-    /// [`QuerySide::upper_rows`] computes it.
-    fn upper_pair<M: KeyframeMemory + ?Sized>(
+    /// Lower and upper bounds on `s_e(Q_{t−j}, row)` from the codes; the
+    /// upper one as [`QuerySide::upper_rows`] computes it.
+    fn pair_bounds<M: KeyframeMemory + ?Sized>(
         &self,
         memory: &M,
         codes: &[QueryCode],
         kernel: CodeKernel,
         row: usize,
         j: usize,
-    ) -> f32 {
-        let [(estimate, bound)] =
-            memory
-                .descriptors()
-                .codes()
-                .dot_bounds(kernel, row, &[&codes[j]]);
-        self.fused(memory, row, j, estimate + bound) * (1.0 + 1e-6)
-    }
-
-    /// A lower bound on `s_e(Q_{t−j}, row)` from the codes.
-    fn lower_pair<M: KeyframeMemory + ?Sized>(
-        &self,
-        memory: &M,
-        codes: &[QueryCode],
-        kernel: CodeKernel,
-        row: usize,
-        j: usize,
-    ) -> f32 {
-        let [(estimate, bound)] =
-            memory
-                .descriptors()
-                .codes()
-                .dot_bounds(kernel, row, &[&codes[j]]);
-        self.fused(memory, row, j, estimate - bound)
+    ) -> (f32, f32) {
+        let m = memory.descriptors().codes();
+        let [(estimate, bound)] = m.dot_bounds(kernel, row, &[&codes[j]]);
+        (
+            self.fused(memory, row, j, estimate - bound),
+            self.fused(memory, row, j, estimate + bound) * (1.0 + 1e-6),
+        )
     }
 
     /// The exact hit of `row`, following its predecessors.
@@ -350,7 +333,7 @@ where
             side.upper_rows(memory, &codes, kernel, first, bounds, upper);
             let upper_at = |c: usize, j: usize| match c.checked_sub(first) {
                 Some(i) if i < upper.len() => upper[i][j],
-                _ => side.upper_pair(memory, &codes, kernel, c, j),
+                _ => side.pair_bounds(memory, &codes, kernel, c, j).1,
             };
             let mut best = Vec::new();
             for (i, slot) in out.iter_mut().enumerate() {
@@ -396,7 +379,7 @@ where
         .filter(|&(row, _)| {
             let tight = temporal_hit(params, memory, steps, row, |c, j| {
                 (
-                    side.upper_pair(memory, &codes, kernel, c, j),
+                    side.pair_bounds(memory, &codes, kernel, c, j).1,
                     side.scenes[j].compatibility(memory.scene(c)),
                 )
             });
@@ -469,18 +452,13 @@ fn sample_median<M: KeyframeMemory + ?Sized>(
     let bounds: Vec<(f32, f32)> = rows
         .par_iter()
         .map(|&row| {
-            let lo = temporal_hit(params, memory, steps, row, |c, j| {
-                (
-                    side.lower_pair(memory, codes, kernel, c, j),
-                    side.scenes[j].compatibility(memory.scene(c)),
-                )
-            });
-            let hi = temporal_hit(params, memory, steps, row, |c, j| {
-                (
-                    side.upper_pair(memory, codes, kernel, c, j),
-                    side.scenes[j].compatibility(memory.scene(c)),
-                )
-            });
+            let bound = |c: usize, j: usize, upper: bool| {
+                let (lo, hi) = side.pair_bounds(memory, codes, kernel, c, j);
+                let compat = side.scenes[j].compatibility(memory.scene(c));
+                (if upper { hi } else { lo }, compat)
+            };
+            let lo = temporal_hit(params, memory, steps, row, |c, j| bound(c, j, false));
+            let hi = temporal_hit(params, memory, steps, row, |c, j| bound(c, j, true));
             (lo.score, hi.score)
         })
         .collect();
@@ -516,7 +494,7 @@ mod tests {
     use crate::keyframe::SceneClass;
     use crate::vpr::memory::VecMemory;
     use crate::vpr::params::TemporalMode;
-    use crate::vpr::testing::{scene_strategy, unit_vector};
+    use crate::vpr::testing::{memory_strategy, scene_strategy, unit_vector};
     use proptest::prelude::*;
 
     fn run(
@@ -620,37 +598,10 @@ mod tests {
         }
     }
 
-    fn memory_strategy() -> impl Strategy<Value = VecMemory> {
-        prop::collection::vec(
-            (
-                unit_vector(6),
-                scene_strategy(),
-                any::<prop::sample::Index>(),
-                any::<bool>(),
-            ),
-            0..80,
-        )
-        .prop_map(|rows| {
-            let mut m = VecMemory::new(6);
-            for (i, (d, scene, pred, has_pred)) in rows.into_iter().enumerate() {
-                let pred = (has_pred && i > 0).then(|| pred.index(i));
-                m.push(
-                    Features {
-                        descriptor: d,
-                        scene,
-                        ..Features::default()
-                    },
-                    pred,
-                );
-            }
-            m
-        })
-    }
-
     proptest! {
         #[test]
         fn compressed_equals_exact(
-            m in memory_strategy(),
+            m in memory_strategy(6, 80),
             history in prop::collection::vec((unit_vector(6), scene_strategy()), 1..4),
             mask in prop::collection::vec(any::<bool>(), 1..9),
             k in 1usize..30,

@@ -8,6 +8,7 @@
 use proptest::prelude::*;
 
 use crate::keyframe::{Features, ObjectObservation, SceneClass, TextObservation};
+use crate::vpr::memory::VecMemory;
 
 /// Absolute-tolerance comparison for hand-computed expectations.
 pub fn close(a: f32, b: f32) -> bool {
@@ -124,5 +125,35 @@ pub fn scene_strategy() -> impl Strategy<Value = Vec<SceneClass>> {
                 probability: p / total,
             })
             .collect()
+    })
+}
+
+/// A random store of up to `max_rows` rows: unit descriptors of length
+/// `dim`, random scene lists, and for each row a predecessor among the
+/// earlier rows (or none).
+pub fn memory_strategy(dim: usize, max_rows: usize) -> impl Strategy<Value = VecMemory> {
+    prop::collection::vec(
+        (
+            unit_vector(dim),
+            scene_strategy(),
+            any::<prop::sample::Index>(),
+            any::<bool>(),
+        ),
+        0..max_rows,
+    )
+    .prop_map(move |rows| {
+        let mut m = VecMemory::new(dim);
+        for (i, (descriptor, scene, pred, has_pred)) in rows.into_iter().enumerate() {
+            let pred = (has_pred && i > 0).then(|| pred.index(i));
+            m.push(
+                Features {
+                    descriptor,
+                    scene,
+                    ..Features::default()
+                },
+                pred,
+            );
+        }
+        m
     })
 }
