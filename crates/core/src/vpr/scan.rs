@@ -20,7 +20,8 @@
 //!
 //! [`ScanMode::Auto`] takes the compressed pass from
 //! [`COMPRESSED_MIN_ROWS`] rows, where the sample and the rescoring are
-//! small next to the rows it saves reading.
+//! small next to the rows it saves reading, on CPUs whose code kernel is
+//! faster than the f32 scan ([`CodeKernel::pays_off`]: AVX-512 VNNI today).
 //!
 //! Both passes split the rows into blocks that rayon runs on every core;
 //! each row's result depends only on the row, and ties order by row, so the
@@ -45,7 +46,8 @@ use crate::vpr::scal::{temporal_hit, ScalHit, ScalQuery, SceneProfile, STEPS};
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Default, Serialize, Deserialize)]
 #[serde(rename_all = "lowercase")]
 pub enum ScanMode {
-    /// Compressed from [`COMPRESSED_MIN_ROWS`] stored rows, exact below.
+    /// Compressed from [`COMPRESSED_MIN_ROWS`] stored rows where the CPU
+    /// has a fast code kernel, exact otherwise.
     #[default]
     Auto,
     /// Always the f32 pass.
@@ -84,7 +86,7 @@ where
     let side = QuerySide::new(params, &query.history);
     let rows = memory.descriptors().len();
     let compressed = match params.scan {
-        ScanMode::Auto => rows >= COMPRESSED_MIN_ROWS,
+        ScanMode::Auto => rows >= COMPRESSED_MIN_ROWS && CodeKernel::detect().pays_off(),
         ScanMode::Exact => false,
         ScanMode::Compressed => true,
     };
