@@ -209,8 +209,10 @@ impl Index {
         for text in distinct_texts(&keyframe.features.objects) {
             *self.text_df.entry(text).or_insert(0) += 1;
         }
+        let (robot, session) = self
+            .interner
+            .intern(&keyframe.key.robot_id, &keyframe.key.session_id);
         self.by_key.insert(keyframe.key.clone(), row);
-        let (robot, session) = self.interner.intern(&keyframe.key.session());
         self.ids.push(RowIds {
             robot,
             session,

@@ -11,7 +11,6 @@
 
 use std::collections::HashMap;
 
-use crate::keyframe::SessionKey;
 use crate::vpr::eligibility::{QueryContext, Scope};
 
 /// The integers the eligibility rule reads about one stored keyframe.
@@ -31,34 +30,53 @@ pub struct RowIds {
 
 /// Robot and session strings to dense integers. Ids are never reused or
 /// released: a fleet has few robots and sessions next to its keyframes.
+/// Lookups borrow the strings, so interning a known session (every insert)
+/// allocates nothing.
 #[derive(Debug, Clone, Default)]
 pub struct Interner {
-    robots: HashMap<String, u32>,
-    sessions: HashMap<(u32, String), u32>,
+    robots: HashMap<String, RobotIds>,
+    sessions: u32,
+}
+
+/// One robot's id and the ids of its sessions.
+#[derive(Debug, Clone)]
+struct RobotIds {
+    id: u32,
+    sessions: HashMap<String, u32>,
 }
 
 impl Interner {
-    /// The ids of `session`, interning them if new.
-    pub fn intern(&mut self, session: &SessionKey) -> (u32, u32) {
-        let next_robot = self.robots.len() as u32;
-        let robot = *self
-            .robots
-            .entry(session.robot_id.clone())
-            .or_insert(next_robot);
-        let next_session = self.sessions.len() as u32;
-        let id = *self
-            .sessions
-            .entry((robot, session.session_id.clone()))
-            .or_insert(next_session);
-        (robot, id)
+    /// The ids of a robot and one of its sessions, interning them if new.
+    pub fn intern(&mut self, robot_id: &str, session_id: &str) -> (u32, u32) {
+        if !self.robots.contains_key(robot_id) {
+            let id = self.robots.len() as u32;
+            self.robots.insert(
+                robot_id.to_string(),
+                RobotIds {
+                    id,
+                    sessions: HashMap::new(),
+                },
+            );
+        }
+        let robot = self.robots.get_mut(robot_id).expect("interned above");
+        let id = match robot.sessions.get(session_id) {
+            Some(&id) => id,
+            None => {
+                let id = self.sessions;
+                self.sessions += 1;
+                robot.sessions.insert(session_id.to_string(), id);
+                id
+            }
+        };
+        (robot.id, id)
     }
 
     fn robot(&self, robot_id: &str) -> Option<u32> {
-        self.robots.get(robot_id).copied()
+        self.robots.get(robot_id).map(|r| r.id)
     }
 
-    fn session(&self, robot: u32, session_id: &str) -> Option<u32> {
-        self.sessions.get(&(robot, session_id.to_string())).copied()
+    fn session(&self, robot_id: &str, session_id: &str) -> Option<u32> {
+        self.robots.get(robot_id)?.sessions.get(session_id).copied()
     }
 }
 
@@ -97,9 +115,7 @@ impl Eligibility {
     /// Compiles `context` against the ids interned so far. Names that were
     /// never interned match no row.
     pub fn compile(context: &QueryContext, interner: &Interner) -> Eligibility {
-        let session = interner
-            .robot(&context.session.robot_id)
-            .and_then(|robot| interner.session(robot, &context.session.session_id));
+        let session = interner.session(&context.session.robot_id, &context.session.session_id);
         let scope = match &context.scope {
             Scope::SameMap => CompiledScope::SameMap,
             Scope::OtherMaps => CompiledScope::OtherMaps,
@@ -112,7 +128,7 @@ impl Eligibility {
                         let robot = interner.robot(&m.robot_id)?;
                         let session = match &m.session_id {
                             None => None,
-                            Some(s) => Some(interner.session(robot, s)?),
+                            Some(s) => Some(interner.session(&m.robot_id, s)?),
                         };
                         Some(MapIds {
                             robot,
@@ -163,7 +179,7 @@ impl Eligibility {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::keyframe::KeyframeKey;
+    use crate::keyframe::{KeyframeKey, SessionKey};
     use crate::vpr::eligibility::{is_eligible, CandidateMeta, MapRef};
     use proptest::prelude::*;
 
@@ -207,7 +223,7 @@ mod tests {
                 .filter(|(robot, ..)| robot != "c")
                 .map(|(robot_id, session_id, keyframe_id, map_id, frame_id)| {
                     let key = KeyframeKey { robot_id, session_id, keyframe_id };
-                    let (robot, session) = interner.intern(&key.session());
+                    let (robot, session) = interner.intern(&key.robot_id, &key.session_id);
                     let ids = RowIds { robot, session, map_id, frame_id, keyframe_id };
                     (key, frame_id, map_id, ids)
                 })

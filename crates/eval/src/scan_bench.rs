@@ -186,11 +186,17 @@ fn answer(outcome: &QueryOutcome) -> Vec<(KeyframeKey, f32)> {
         .collect()
 }
 
-fn median_ms(samples: &mut [Duration]) -> f64 {
-    samples.sort();
-    samples
-        .get(samples.len() / 2)
-        .map_or(0.0, |d| d.as_secs_f64() * 1e3)
+/// `f`'s result and how long it took.
+fn timed<T>(f: impl FnOnce() -> T) -> (Duration, T) {
+    let started = Instant::now();
+    let result = f();
+    (started.elapsed(), result)
+}
+
+/// The median of `samples` in milliseconds (the harness's one latency
+/// summary, [`crate::metrics::latency`]).
+fn median_ms(samples: &[Duration]) -> f64 {
+    crate::metrics::latency(samples).median_ms
 }
 
 /// One store size's figures.
@@ -255,26 +261,17 @@ pub fn scan(config: Config, args: ScanBench) -> anyhow::Result<()> {
             let key = spec.session.keyframe(id);
             let row = index.row_of(&key).context("query keyframe stored")?;
             let q = index.descriptor(row).to_vec();
-            let timed = |f: &mut dyn FnMut()| {
-                let t = Instant::now();
-                f();
-                t.elapsed()
-            };
-            let mut top = Vec::new();
-            let flat_time = one_core.install(|| timed(&mut || top = flat_scan(&index, &q, k)));
+            let (flat_time, top) = one_core.install(|| timed(|| flat_scan(&index, &q, k)));
             std::hint::black_box(&top);
             let mut outcomes = Vec::new();
             for (pool_one, p) in [(true, &exact), (true, &compressed), (false, &compressed)] {
-                let mut outcome = None;
-                let mut run = || outcome = Some(query::run(&index, p, &spec));
-                let t = if pool_one {
-                    one_core.install(|| timed(&mut run))
+                let run = || query::run(&index, p, &spec);
+                let (t, outcome) = if pool_one {
+                    one_core.install(|| timed(run))
                 } else {
-                    timed(&mut run)
+                    timed(run)
                 };
-                let outcome = outcome
-                    .context("query ran")?
-                    .map_err(|e| anyhow::anyhow!("query {id}: {e:?}"))?;
+                let outcome = outcome.map_err(|e| anyhow::anyhow!("query {id}: {e:?}"))?;
                 outcomes.push((t, answer(&outcome)));
             }
             if n < 2 {
@@ -291,10 +288,10 @@ pub fn scan(config: Config, args: ScanBench) -> anyhow::Result<()> {
         table.push(Row {
             rows,
             build,
-            flat: median_ms(&mut flat),
-            exact: median_ms(&mut exact_t),
-            compressed_one: median_ms(&mut one_t),
-            compressed_all: median_ms(&mut all_t),
+            flat: median_ms(&flat),
+            exact: median_ms(&exact_t),
+            compressed_one: median_ms(&one_t),
+            compressed_all: median_ms(&all_t),
             identical,
             queries: args.queries,
             per_keyframe,

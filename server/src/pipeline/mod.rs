@@ -10,7 +10,9 @@
 //!   dimension check, the store write, the query scan on the blocking pool,
 //!   and the request-level metrics;
 //! - [`query`]: one query over the index, end to end, synchronous;
-//! - [`latest_wins`]: one pending query per client and kind, newest wins.
+//! - [`latest_wins`]: one pending query per client and kind, newest wins;
+//! - [`admission`]: scan slots shared by all robots, refusing a query at
+//!   once when its wait would outlast what it can wait.
 
 pub mod admission;
 pub mod latest_wins;
@@ -193,14 +195,14 @@ impl Pipeline {
             perception_timings = timings;
         }
         let left = deadline.map(|d| d.saturating_sub(arrived.elapsed()));
-        let slot = self.admission.admit(left).await.inspect_err(|busy| {
+        let scan_slot = self.admission.admit(left).await.inspect_err(|busy| {
             tracing::debug!(%busy, "query refused");
             metrics::QUERIES_REFUSED.with_label_values(&[kind]).inc();
         })?;
         let index = self.store.index_handle();
         let params = self.params.clone();
         let mut outcome = tokio::task::spawn_blocking(move || {
-            let _slot = slot;
+            let _scan_slot = scan_slot;
             let index = index.read();
             query::run(&index, &params, &spec)
         })

@@ -90,11 +90,6 @@ impl CodeMatrix {
         self.rows.is_empty()
     }
 
-    /// Bytes held per row (codes and their three constants).
-    pub fn bytes_per_row(&self) -> usize {
-        self.stride + std::mem::size_of::<RowCode>()
-    }
-
     /// Appends the codes of `row`.
     pub fn push(&mut self, row: &[f32]) {
         let start = self.codes.len();

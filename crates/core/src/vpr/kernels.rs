@@ -26,9 +26,14 @@ use multiversion::multiversion;
 /// Code rows and queries are padded to a multiple of this many bytes.
 pub const CODE_BLOCK: usize = 64;
 
-/// The code dot-product kernel chosen for this CPU, detected once.
+/// The code dot-product kernel chosen for this CPU, detected once. Its
+/// variant is private: only [`CodeKernel::detect`] can pick the VNNI kernel,
+/// which is what makes calling it sound.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
-pub enum CodeKernel {
+pub struct CodeKernel(Kind);
+
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+enum Kind {
     /// AVX-512 with VNNI (`vpdpbusd`).
     Avx512Vnni,
     /// The portable loop, in its best [`multiversion`] clone.
@@ -45,28 +50,17 @@ impl CodeKernel {
                 && std::arch::is_x86_feature_detected!("avx512bw")
                 && std::arch::is_x86_feature_detected!("avx512vnni")
             {
-                return CodeKernel::Avx512Vnni;
+                return CodeKernel(Kind::Avx512Vnni);
             }
-            CodeKernel::Portable
+            CodeKernel(Kind::Portable)
         })
     }
 
-    /// `Σ_i row[i] · q[i]` for each query, with `row` as stored (`u8`) and
-    /// the queries as `i8`; all slices have the same length, a multiple of
-    /// [`CODE_BLOCK`].
-    pub fn dots<const Q: usize>(self, row: &[u8], queries: &[&[i8]; Q]) -> [i32; Q] {
-        debug_assert!(queries.iter().all(|q| q.len() == row.len()));
-        debug_assert_eq!(row.len() % CODE_BLOCK, 0);
-        match self {
-            #[cfg(target_arch = "x86_64")]
-            CodeKernel::Avx512Vnni => vnni_dots(row, queries),
-            _ => queries.map(|q| portable_code_dot(row, q)),
-        }
-    }
-
-    /// [`CodeKernel::dots`] for consecutive rows of `stride` bytes in
-    /// `rows`, into `out` (one entry per row). One call per block keeps
-    /// the queries in registers and the loads streaming.
+    /// `Σ_i row[i] · q[i]` for each query and each of the consecutive rows
+    /// of `stride` bytes in `rows`, into `out` (one entry per row), with
+    /// rows as stored (`u8`) and queries as `i8` of `stride` bytes, a
+    /// multiple of [`CODE_BLOCK`]. One call per block keeps the queries in
+    /// registers and the loads streaming.
     pub fn dots_rows<const Q: usize>(
         self,
         rows: &[u8],
@@ -75,10 +69,11 @@ impl CodeKernel {
         out: &mut [[i32; Q]],
     ) {
         debug_assert_eq!(rows.len(), stride * out.len());
+        debug_assert_eq!(stride % CODE_BLOCK, 0);
         debug_assert!(queries.iter().all(|q| q.len() == stride));
-        match self {
+        match self.0 {
             #[cfg(target_arch = "x86_64")]
-            CodeKernel::Avx512Vnni => vnni_dots_rows(rows, stride, queries, out),
+            Kind::Avx512Vnni => vnni_dots_rows(rows, stride, queries, out),
             _ => {
                 for (row, o) in rows.chunks_exact(stride).zip(out) {
                     *o = queries.map(|q| portable_code_dot(row, q));
@@ -94,30 +89,17 @@ impl CodeKernel {
     /// development machine: 220 ns per 512-byte row against 180 ns per
     /// 2 KB f32 row), so `vpr.scan = "auto"` keeps the exact pass there.
     pub fn pays_off(self) -> bool {
-        self != CodeKernel::Portable
+        self.0 != Kind::Portable
     }
 
     /// The portable kernel, whatever the CPU (for tests and benchmarks).
     pub fn portable() -> CodeKernel {
-        CodeKernel::Portable
+        CodeKernel(Kind::Portable)
     }
 }
 
-/// Calls the VNNI kernel; only reachable when [`CodeKernel::detect`] found
-/// the features it is compiled for.
-#[cfg(target_arch = "x86_64")]
-#[allow(
-    unsafe_code,
-    reason = "calling a #[target_feature] function needs unsafe; the features were detected at run time"
-)]
-fn vnni_dots<const Q: usize>(row: &[u8], queries: &[&[i8]; Q]) -> [i32; Q] {
-    // SAFETY: `CodeKernel::Avx512Vnni` is only constructed by `detect`
-    // after `is_x86_feature_detected!` confirmed avx512f, avx512bw and
-    // avx512vnni; the function has no other precondition.
-    unsafe { vnni::dots(row, queries) }
-}
-
-/// Calls the VNNI kernel over a block of rows; see [`vnni_dots`].
+/// Calls the VNNI kernel over a block of rows; only reachable through a
+/// [`CodeKernel`] that [`CodeKernel::detect`] made.
 #[cfg(target_arch = "x86_64")]
 #[allow(
     unsafe_code,
@@ -129,7 +111,10 @@ fn vnni_dots_rows<const Q: usize>(
     queries: &[&[i8]; Q],
     out: &mut [[i32; Q]],
 ) {
-    // SAFETY: as in `vnni_dots`.
+    // SAFETY: `Kind::Avx512Vnni` is private to this module and only chosen
+    // by `CodeKernel::detect` after `is_x86_feature_detected!` confirmed
+    // avx512f, avx512bw and avx512vnni; the function has no other
+    // precondition.
     unsafe { vnni::dots_rows(rows, stride, queries, out) }
 }
 
@@ -171,7 +156,7 @@ mod vnni {
     /// into 16 `i32` lanes, four at a time, without saturation.
     #[target_feature(enable = "avx512f,avx512bw,avx512vnni")]
     #[inline]
-    pub fn dots<const Q: usize>(row: &[u8], queries: &[&[i8]; Q]) -> [i32; Q] {
+    fn dots<const Q: usize>(row: &[u8], queries: &[&[i8]; Q]) -> [i32; Q] {
         let mut acc = [_mm512_setzero_si512(); Q];
         for (block, r) in row.chunks_exact(super::CODE_BLOCK).enumerate() {
             let r = row_lanes(r);
@@ -221,6 +206,13 @@ pub fn dot_f32_wide(a: &[f32], b: &[f32]) -> f32 {
 mod tests {
     use super::*;
 
+    /// The kernel on one row.
+    fn dots<const Q: usize>(kernel: CodeKernel, row: &[u8], queries: &[&[i8]; Q]) -> [i32; Q] {
+        let mut out = [[0; Q]];
+        kernel.dots_rows(row, row.len(), queries, &mut out);
+        out[0]
+    }
+
     fn reference(row: &[u8], q: &[i8]) -> i32 {
         row.iter().zip(q).map(|(&r, &q)| r as i32 * q as i32).sum()
     }
@@ -244,18 +236,18 @@ mod tests {
             let max_row = vec![255u8; n];
             let min_q = vec![-128i8; n];
             for kernel in [CodeKernel::detect(), CodeKernel::portable()] {
-                let got = kernel.dots(&row, &[&qs[0], &qs[1], &qs[2]]);
+                let got = dots(kernel, &row, &[&qs[0], &qs[1], &qs[2]]);
                 for (g, q) in got.iter().zip(&qs) {
                     assert_eq!(*g, reference(&row, q), "{kernel:?}, {n} bytes");
                 }
-                let [one] = kernel.dots(&row, &[&qs[1]]);
+                let [one] = dots(kernel, &row, &[&qs[1]]);
                 assert_eq!(one, reference(&row, &qs[1]));
                 let mut block = vec![[0i32; 3]; 2];
                 let two_rows: Vec<u8> = row.iter().chain(&max_row).copied().collect();
                 kernel.dots_rows(&two_rows, n, &[&qs[0], &qs[1], &qs[2]], &mut block);
                 assert_eq!(block[0], got);
                 assert_eq!(block[1], [0, 1, 2].map(|i| reference(&max_row, &qs[i])));
-                let [extreme] = kernel.dots(&max_row, &[&min_q]);
+                let [extreme] = dots(kernel, &max_row, &[&min_q]);
                 assert_eq!(extreme, -255 * 128 * n as i32);
             }
         }

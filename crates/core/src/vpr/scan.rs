@@ -27,6 +27,7 @@
 //! each row's result depends only on the row, and ties order by row, so the
 //! answer does not depend on the number of threads.
 
+use std::cell::Cell;
 use std::cmp::Ordering;
 
 use rayon::prelude::*;
@@ -187,26 +188,19 @@ impl<'a> QuerySide<'a> {
         bounds: &mut Vec<[(f32, f32); STEPS]>,
         out: &mut [[f32; STEPS]],
     ) {
-        let m = memory.descriptors().codes();
+        // A history shorter than STEPS repeats its last query: the extra
+        // products are never read (`temporal_hit` stops at the history's
+        // length), and one kernel shape serves every query.
+        let last = codes.len() - 1;
+        let query = |j: usize| &codes[j.min(last)];
         bounds.clear();
         bounds.resize(out.len(), [(0.0, 0.0); STEPS]);
-        match codes {
-            [] => {}
-            [a] => {
-                let mut one = vec![[(0.0, 0.0)]; out.len()];
-                m.dot_bounds_rows(kernel, first, &[a], &mut one);
-                bounds.iter_mut().zip(one).for_each(|(b, [x])| b[0] = x);
-            }
-            [a, b] => {
-                let mut two = vec![[(0.0, 0.0); 2]; out.len()];
-                m.dot_bounds_rows(kernel, first, &[a, b], &mut two);
-                bounds.iter_mut().zip(two).for_each(|(b, [x, y])| {
-                    b[0] = x;
-                    b[1] = y;
-                });
-            }
-            [a, b, c, ..] => m.dot_bounds_rows(kernel, first, &[a, b, c], bounds),
-        }
+        memory.descriptors().codes().dot_bounds_rows(
+            kernel,
+            first,
+            &[query(0), query(1), query(2)],
+            bounds,
+        );
         // The relative margin covers the scene modulation's rounding: the
         // loose bound skips it, and (1 + λc)/(1 + λ) at c = 1 can round a
         // hair above 1. [`QuerySide::pair_bounds`] does the same for one.
@@ -351,7 +345,8 @@ where
             (count, best)
         })
         .collect();
-    let eligible_count: usize = per_block.iter().map(|(n, _)| n).sum();
+    let (counts, bests): (Vec<usize>, Vec<Vec<(f32, usize)>>) = per_block.into_iter().unzip();
+    let eligible_count: usize = counts.iter().sum();
     if eligible_count == 0 || k == 0 {
         return ScalScan {
             hits: Vec::new(),
@@ -361,7 +356,7 @@ where
     }
 
     // L: the lowest exact score among the K rows with the highest bounds.
-    let mut seeds: Vec<(f32, usize)> = per_block.iter().flat_map(|(_, b)| b.clone()).collect();
+    let mut seeds: Vec<(f32, usize)> = bests.into_iter().flatten().collect();
     keep_highest(&mut seeds, k);
     let floor = if eligible_count <= k {
         f32::NEG_INFINITY
@@ -393,13 +388,13 @@ where
 
     // The null model's sample: every stride-th eligible row, scored exactly.
     let stride = NullModel::stride(eligible_count);
-    let mut start = 0;
-    let offsets: Vec<usize> = per_block
+    // Each block's first eligible ordinal.
+    let offsets: Vec<usize> = counts
         .iter()
-        .map(|(n, _)| {
-            let first = start;
-            start += n;
-            first
+        .scan(0, |next, n| {
+            let first = *next;
+            *next += n;
+            Some(first)
         })
         .collect();
     let sample_rows: Vec<usize> = loose
@@ -454,8 +449,15 @@ fn sample_median<M: KeyframeMemory + ?Sized>(
     let bounds: Vec<(f32, f32)> = rows
         .par_iter()
         .map(|&row| {
+            // Both walks visit the same chain row at each step: its bounds
+            // come from one code product, kept by step.
+            let seen: [Cell<Option<(f32, f32)>>; STEPS] = Default::default();
             let bound = |c: usize, j: usize, upper: bool| {
-                let (lo, hi) = side.pair_bounds(memory, codes, kernel, c, j);
+                let (lo, hi) = seen[j].get().unwrap_or_else(|| {
+                    let pair = side.pair_bounds(memory, codes, kernel, c, j);
+                    seen[j].set(Some(pair));
+                    pair
+                });
                 let compat = side.scenes[j].compatibility(memory.scene(c));
                 (if upper { hi } else { lo }, compat)
             };
