@@ -85,6 +85,9 @@ pub struct StoreConfig {
     pub write_queue: usize,
     /// Scene classes kept per keyframe (the most probable ones).
     pub scene_top_k: usize,
+    /// Keyframe changes between index snapshots (0: only at shutdown). A
+    /// restart replays at most about this many changes from the journal.
+    pub snapshot_every: u64,
 }
 
 impl Default for StoreConfig {
@@ -94,6 +97,7 @@ impl Default for StoreConfig {
             descriptor_dim: 0,
             write_queue: 1024,
             scene_top_k: 16,
+            snapshot_every: humem_store::DEFAULT_SNAPSHOT_EVERY,
         }
     }
 }

@@ -14,7 +14,7 @@ use crate::pipeline::admission::QueryAdmission;
 use crate::pipeline::latest_wins::LatestWins;
 use crate::proto::place_recognition_server::PlaceRecognitionServer;
 use humem_perception::Perception;
-use humem_store::Store;
+use humem_store::{Store, StoreOptions};
 
 /// Runs the service until a shutdown signal.
 pub async fn serve(config: Config) -> anyhow::Result<()> {
@@ -33,13 +33,17 @@ pub async fn serve(config: Config) -> anyhow::Result<()> {
             .build_global()
             .context("starting the scan threads (query.scan_threads)")?;
     }
-    let store = Store::open_observed(
-        &config.store.data_dir,
-        config.store.descriptor_dim,
-        config.store.write_queue,
-        metrics::queue_observer(),
-    )
-    .with_context(|| format!("opening the store in {}", config.store.data_dir.display()))?;
+    // The store and the models load side by side: each takes seconds on a
+    // large store or a cold model cache, and they share nothing.
+    let store_options = StoreOptions {
+        dim: config.store.descriptor_dim,
+        queue_capacity: config.store.write_queue,
+        snapshot_every: config.store.snapshot_every,
+    };
+    let data_dir = config.store.data_dir.clone();
+    let opening = tokio::task::spawn_blocking(move || {
+        Store::open_with(&data_dir, store_options, metrics::queue_observer())
+    });
 
     let limits = Limits {
         scene_top_k: config.store.scene_top_k,
@@ -61,6 +65,10 @@ pub async fn serve(config: Config) -> anyhow::Result<()> {
         tracing::warn!("perception disabled: requests with images will be refused");
         None
     };
+    let store = opening
+        .await
+        .context("opening the store")?
+        .with_context(|| format!("opening the store in {}", config.store.data_dir.display()))?;
     let service = PlaceRecognitionService::new(
         store.clone(),
         config.vpr.clone(),
@@ -143,6 +151,14 @@ pub async fn serve(config: Config) -> anyhow::Result<()> {
         .context("running the gRPC server")?;
 
     store.flush().context("flushing the store at shutdown")?;
+    // A current snapshot lets the next start skip the journal replay; the
+    // store is complete without it, so a failure is only logged.
+    let snapshotting = store.clone();
+    match tokio::task::spawn_blocking(move || snapshotting.snapshot()).await {
+        Ok(Err(e)) => tracing::warn!(error = %e, "index snapshot at shutdown failed"),
+        Err(e) => tracing::warn!(error = %e, "index snapshot at shutdown failed"),
+        Ok(Ok(_)) => {}
+    }
     tracing::info!("humem stopped");
     Ok(())
 }

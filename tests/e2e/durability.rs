@@ -73,5 +73,5 @@ async fn a_clean_restart_keeps_everything_and_exits_zero() {
     assert_eq!(before.keyframes, 50);
     assert_eq!(after.keyframes, before.keyframes);
     assert_eq!(after.maps, before.maps);
-    assert_eq!(after.format_version, 2);
+    assert_eq!(after.format_version, 3);
 }

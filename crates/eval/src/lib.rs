@@ -30,6 +30,7 @@ pub mod metrics;
 pub mod plots;
 pub mod precision;
 pub mod remote;
+pub mod restart_bench;
 pub mod run;
 pub mod scan_bench;
 pub mod text_recall;

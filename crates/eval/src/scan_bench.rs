@@ -76,22 +76,47 @@ const KEYFRAMES_PER_PLACE: usize = 20;
 /// The synthetic store: keyframe `i` of robot `i % robots` sees place
 /// `place_of(i)`, its descriptor that place's centre plus noise.
 fn store(rows: usize, dim: usize, robots: usize) -> Index {
-    let places = (rows / KEYFRAMES_PER_PLACE).max(1) as u64;
     let mut index = Index::new(dim);
-    let mut noise = Rng::new(1);
-    let mut descriptor = vec![0.0f32; dim];
+    let mut fleet = SyntheticFleet::new(rows, dim, robots);
     for i in 0..rows {
-        let robot = i % robots;
-        let step = (i / robots) as u64;
-        // Each robot walks through places in runs of 4 keyframes.
-        let place = Rng::new(step / 4 * 31 + robot as u64).next() % places;
-        let mut centre = Rng::new(place + 7);
-        for v in descriptor.iter_mut() {
-            *v = centre.centred() + 0.6 * noise.centred();
+        index.upsert(fleet.keyframe(i));
+    }
+    index
+}
+
+/// Keyframes of a synthetic fleet, as [`store`] holds them; also what
+/// `humem bench restart` stores.
+pub(crate) struct SyntheticFleet {
+    places: u64,
+    dim: usize,
+    robots: usize,
+    noise: Rng,
+}
+
+impl SyntheticFleet {
+    /// A fleet of `robots` whose `rows` keyframes revisit places in runs.
+    pub(crate) fn new(rows: usize, dim: usize, robots: usize) -> Self {
+        SyntheticFleet {
+            places: (rows / KEYFRAMES_PER_PLACE).max(1) as u64,
+            dim,
+            robots,
+            noise: Rng::new(1),
         }
+    }
+
+    /// Keyframe `i`: robot `i % robots`, its `i / robots`-th keyframe.
+    pub(crate) fn keyframe(&mut self, i: usize) -> SemanticKeyframe {
+        let robot = i % self.robots;
+        let step = (i / self.robots) as u64;
+        // Each robot walks through places in runs of 4 keyframes.
+        let place = Rng::new(step / 4 * 31 + robot as u64).next() % self.places;
+        let mut centre = Rng::new(place + 7);
+        let mut descriptor: Vec<f32> = (0..self.dim)
+            .map(|_| centre.centred() + 0.6 * self.noise.centred())
+            .collect();
         let norm = descriptor.iter().map(|v| v * v).sum::<f32>().sqrt();
         descriptor.iter_mut().for_each(|v| *v /= norm);
-        index.upsert(SemanticKeyframe {
+        SemanticKeyframe {
             key: KeyframeKey {
                 robot_id: format!("robot-{robot}"),
                 session_id: "session".into(),
@@ -102,7 +127,7 @@ fn store(rows: usize, dim: usize, robots: usize) -> Index {
             map_id: 0,
             pose: Pose::default(),
             features: Features {
-                descriptor: descriptor.clone(),
+                descriptor,
                 scene: (0..16)
                     .map(|k| SceneClass {
                         class_id: ((place as usize + 3 * k) % 365) as u32,
@@ -112,9 +137,8 @@ fn store(rows: usize, dim: usize, robots: usize) -> Index {
                 objects: Vec::new(),
                 appearance: Vec::new(),
             },
-        });
+        }
     }
-    index
 }
 
 /// The baseline: one query's exact inner products with every row and the
@@ -187,7 +211,7 @@ fn answer(outcome: &QueryOutcome) -> Vec<(KeyframeKey, f32)> {
 }
 
 /// `f`'s result and how long it took.
-fn timed<T>(f: impl FnOnce() -> T) -> (Duration, T) {
+pub(crate) fn timed<T>(f: impl FnOnce() -> T) -> (Duration, T) {
     let started = Instant::now();
     let result = f();
     (started.elapsed(), result)

@@ -52,6 +52,11 @@ async fn main() -> anyhow::Result<()> {
             humem_eval::scan_bench::scan(config, args)
         }
         #[cfg(feature = "eval")]
+        Command::Bench(BenchCommand::Restart(args)) => {
+            init_logging(LogFormat::Plain, "warn");
+            humem_eval::restart_bench::restart(args).await
+        }
+        #[cfg(feature = "eval")]
         Command::Eval(args) => {
             let config = Config::load(cli.config.as_deref(), figment::Figment::new())?;
             init_logging(LogFormat::Plain, "warn,ort::logging=error");

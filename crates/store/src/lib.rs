@@ -1,7 +1,9 @@
 //! Durable storage of semantic keyframes in sled, and the in-memory index
 //! that queries scan.
 //!
-//! sled is the source of truth; the [`Index`] is rebuilt from it at start.
+//! sled is the source of truth. At start the [`Index`] is loaded from its
+//! snapshot and brought up to date from the write journal, or, where there
+//! is no usable snapshot, rebuilt from every record in sled.
 //! All changes go through one writer thread ([`writer`]), which applies them
 //! to sled in arrival order, flushes once for every group of changes that
 //! arrived together (group commit), and only then makes them visible in the
@@ -13,13 +15,22 @@
 //! - [`codec`]: the on-disk format, sled keys and versioned postcard
 //!   records;
 //! - `writer`: the single writer thread, its bounded queue and group
-//!   commit.
+//!   commit;
+//! - [`journal`]: which keys each change touched, by write sequence;
+//! - [`snapshot`]: the index snapshot file beside the tree;
+//! - `checkpoint`: when snapshots are taken, on their own thread.
 
+mod checkpoint;
+pub use checkpoint::SnapshotReport;
 pub mod codec;
+pub mod journal;
+pub mod snapshot;
 mod writer;
 
 use std::path::Path;
+use std::sync::atomic::{AtomicBool, AtomicU64};
 use std::sync::Arc;
+use std::time::{Duration, Instant};
 
 use humem_core::observe::SharedObserver;
 use parking_lot::RwLock;
@@ -80,6 +91,12 @@ pub enum StoreError {
     /// acknowledged or visible in the index. Holds sled's message.
     #[error("flushing to disk failed: {0}")]
     Flush(String),
+    /// A journal entry could not be written.
+    #[error("write journal: {0}")]
+    Journal(String),
+    /// Writing the index snapshot failed (the store itself is unharmed).
+    #[error("index snapshot: {0}")]
+    Snapshot(#[from] snapshot::SnapshotError),
 }
 
 /// One change to the store, as the writer applies it.
@@ -131,12 +148,67 @@ pub struct MutationOutcome {
     pub store_keyframes: u64,
 }
 
+/// How the store is opened.
+#[derive(Debug, Clone)]
+pub struct StoreOptions {
+    /// Pins the descriptor length (0: taken from the first keyframe).
+    pub dim: usize,
+    /// Changes the writer's queue holds before refusing more.
+    pub queue_capacity: usize,
+    /// Journaled keyframe changes between automatic index snapshots, and
+    /// the threshold for one right after open (0: snapshots only when
+    /// asked, as at shutdown).
+    pub snapshot_every: u64,
+}
+
+impl Default for StoreOptions {
+    fn default() -> Self {
+        StoreOptions {
+            dim: 0,
+            queue_capacity: 1024,
+            snapshot_every: DEFAULT_SNAPSHOT_EVERY,
+        }
+    }
+}
+
+/// Default of [`StoreOptions::snapshot_every`]: replaying this many
+/// changes at open costs well under a second.
+pub const DEFAULT_SNAPSHOT_EVERY: u64 = 100_000;
+
+/// Where the index came from at open.
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub enum IndexSource {
+    /// The snapshot, then `replayed` journaled keys read again from sled.
+    Snapshot {
+        /// Distinct keyframe keys replayed from the journal.
+        replayed: usize,
+    },
+    /// Every record in sled; `reason` says why not from a snapshot.
+    Tree {
+        /// Why no snapshot was used.
+        reason: String,
+    },
+}
+
+/// How the store was opened, for logs, metrics and tests.
+#[derive(Debug, Clone)]
+pub struct OpenReport {
+    /// Where the index came from.
+    pub source: IndexSource,
+    /// Keyframes in the index.
+    pub keyframes: usize,
+    /// Time from the call to a ready index.
+    pub elapsed: Duration,
+}
+
 /// The store: sled plus the in-memory index, shared by the service.
 #[derive(Clone)]
 pub struct Store {
     db: sled::Db,
     index: Arc<RwLock<Index>>,
     writer: writer::WriterHandle,
+    checkpoints: Arc<checkpoint::Checkpoints>,
+    opened: Arc<OpenReport>,
 }
 
 const KEYFRAMES_TREE: &str = "keyframes";
@@ -144,21 +216,40 @@ const META_TREE: &str = "meta";
 const META_FORMAT: &[u8] = b"format_version";
 const META_DIM: &[u8] = b"descriptor_dim";
 
+/// Version of the store's layout, recorded in its meta tree. 3 added the
+/// write journal (and the index snapshot beside the tree) to version 2's
+/// records; a build that predates the journal refuses a version 3 store
+/// instead of writing to it unjournaled.
+pub const STORE_FORMAT: u32 = 3;
+
 impl Store {
-    /// Opens (or creates) the store in `dir` and rebuilds the index from it.
+    /// Opens (or creates) the store in `dir` and loads its index.
     /// `dim` pins the descriptor length (0: taken from the first keyframe).
     pub fn open(dir: &Path, dim: usize, queue_capacity: usize) -> Result<Store, StoreError> {
-        Self::open_observed(dir, dim, queue_capacity, humem_core::observe::unobserved())
+        Self::open_with(
+            dir,
+            StoreOptions {
+                dim,
+                queue_capacity,
+                ..StoreOptions::default()
+            },
+            humem_core::observe::unobserved(),
+        )
     }
 
-    /// [`Store::open`], with the writer's queue depth reported to `observer`
-    /// (queue `store_writer`).
-    pub fn open_observed(
+    /// Opens (or creates) the store in `dir` with `options`, the writer's
+    /// queue depth reported to `observer` (queue `store_writer`).
+    pub fn open_with(
         dir: &Path,
-        dim: usize,
-        queue_capacity: usize,
+        options: StoreOptions,
         observer: SharedObserver,
     ) -> Result<Store, StoreError> {
+        let started = Instant::now();
+        let StoreOptions {
+            dim,
+            queue_capacity,
+            snapshot_every,
+        } = options;
         let db = sled::Config::new()
             .path(dir)
             .open()
@@ -189,33 +280,86 @@ impl Store {
             meta.insert(META_DIM, &(dim as u32).to_be_bytes())?;
         }
 
-        let mut index = Index::new(dim);
-        for item in keyframes.iter() {
-            let (key, value) = item?;
-            let record = codec::decode_record(&value).map_err(|source| StoreError::Corrupt {
-                key: key.to_vec(),
-                source,
-            })?;
-            index.upsert(record);
-        }
+        let journal_tree = db.open_tree(journal::TREE)?;
+        let store_id = journal::store_id(&meta)?;
+        let sequence = journal::last_sequence(&journal_tree, &meta)?;
+        let (index, source, snapshot_sequence) = load_index(
+            dir,
+            &keyframes,
+            &journal_tree,
+            &meta,
+            store_id,
+            dim,
+            sequence,
+        )?;
+        let opened = OpenReport {
+            source,
+            keyframes: index.len(),
+            elapsed: started.elapsed(),
+        };
         tracing::info!(
             dir = %dir.display(),
-            keyframes = index.len(),
+            keyframes = opened.keyframes,
             descriptor_dim = index.dim(),
+            from = ?opened.source,
+            seconds = opened.elapsed.as_secs_f64(),
             "store opened"
         );
         let index = Arc::new(RwLock::new(index));
+        let checkpoints = Arc::new(checkpoint::Checkpoints {
+            dir: dir.to_path_buf(),
+            store_id,
+            index: index.clone(),
+            applied: Arc::new(AtomicU64::new(sequence)),
+            journal: journal_tree.clone(),
+            meta: meta.clone(),
+            every: snapshot_every,
+            since: AtomicU64::new(0),
+            written: AtomicU64::new(snapshot_sequence.unwrap_or(u64::MAX)),
+            running: AtomicBool::new(false),
+            writing: parking_lot::Mutex::new(()),
+        });
+        // Without a current snapshot the next open would walk the tree (or
+        // a long journal) again: write one now, in the background.
+        let stale = match &opened.source {
+            IndexSource::Tree { .. } => opened.keyframes > 0,
+            IndexSource::Snapshot { replayed } => {
+                *replayed as u64 >= snapshot_every.max(1) / 4 && *replayed > 0
+            }
+        };
+        if stale && snapshot_every > 0 {
+            checkpoints.start_background();
+        }
         let writer = writer::spawn(
             writer::Trees {
                 db: db.clone(),
                 keyframes,
                 meta,
+                journal: journal_tree,
             },
-            index.clone(),
+            checkpoints.clone(),
             queue_capacity,
             observer,
         );
-        Ok(Store { db, index, writer })
+        Ok(Store {
+            db,
+            index,
+            writer,
+            checkpoints,
+            opened: Arc::new(opened),
+        })
+    }
+
+    /// How this store was opened.
+    pub fn opened(&self) -> &OpenReport {
+        &self.opened
+    }
+
+    /// Writes an index snapshot now, unless the newest one is current (as
+    /// at shutdown, so the next start replays nothing). Says what was
+    /// written, if anything.
+    pub fn snapshot(&self) -> Result<Option<SnapshotReport>, StoreError> {
+        self.checkpoints.write_now()
     }
 
     /// Applies a change durably; returns once it is flushed to disk and
@@ -252,11 +396,110 @@ impl Store {
     }
 }
 
+/// Loads the index: from the snapshot brought up to date by the journal
+/// when that is possible, else from every record in the tree. Returns the
+/// index, where it came from, and the sequence of the snapshot it was
+/// loaded from (none: rebuilt from the tree).
+fn load_index(
+    dir: &Path,
+    keyframes: &sled::Tree,
+    journal_tree: &sled::Tree,
+    meta: &sled::Tree,
+    store_id: u128,
+    dim: usize,
+    sequence: u64,
+) -> Result<(Index, IndexSource, Option<u64>), StoreError> {
+    let reason = match from_snapshot(dir, keyframes, journal_tree, meta, store_id, dim, sequence) {
+        Ok(Ok((index, replayed, snapshot_sequence))) => {
+            return Ok((
+                index,
+                IndexSource::Snapshot { replayed },
+                Some(snapshot_sequence),
+            ))
+        }
+        Ok(Err(reason)) => reason,
+        Err(StoreError::Snapshot(e)) => e.to_string(),
+        Err(e) => return Err(e),
+    };
+    if reason != NO_SNAPSHOT {
+        tracing::warn!(%reason, "index snapshot not used: rebuilding the index from the store");
+    }
+    let mut index = Index::new(dim);
+    for item in keyframes.iter() {
+        let (key, value) = item?;
+        let record = codec::decode_record(&value).map_err(|source| StoreError::Corrupt {
+            key: key.to_vec(),
+            source,
+        })?;
+        index.upsert(record);
+    }
+    Ok((index, IndexSource::Tree { reason }, None))
+}
+
+const NO_SNAPSHOT: &str = "no snapshot";
+
+/// The snapshot's index plus the journal's changes since, with the number
+/// of keys replayed and the snapshot's sequence; or why it cannot be used.
+fn from_snapshot(
+    dir: &Path,
+    keyframes: &sled::Tree,
+    journal_tree: &sled::Tree,
+    meta: &sled::Tree,
+    store_id: u128,
+    dim: usize,
+    sequence: u64,
+) -> Result<Result<(Index, usize, u64), String>, StoreError> {
+    let Some((header, mut index)) = snapshot::read(dir, store_id, dim)? else {
+        return Ok(Err(NO_SNAPSHOT.into()));
+    };
+    let floor = journal::floor(meta)?;
+    if header.sequence < floor {
+        return Ok(Err(format!(
+            "the snapshot (write {}) is older than the journal, which starts after write {floor}",
+            header.sequence
+        )));
+    }
+    if header.sequence > sequence {
+        return Ok(Err(format!(
+            "the snapshot (write {}) is newer than the store (write {sequence})",
+            header.sequence
+        )));
+    }
+    let pending = journal::pending(journal_tree, header.sequence)?;
+    for key in &pending.keys {
+        match keyframes.get(key)? {
+            Some(value) => {
+                let record =
+                    codec::decode_record(&value).map_err(|source| StoreError::Corrupt {
+                        key: key.clone(),
+                        source,
+                    })?;
+                index.upsert(record);
+            }
+            None => {
+                let key = codec::decode_key(key).map_err(|source| StoreError::Corrupt {
+                    key: key.clone(),
+                    source,
+                })?;
+                index.remove(&key);
+            }
+        }
+    }
+    let expected = pending.keyframes.unwrap_or(header.rows as u64);
+    if index.len() as u64 != expected {
+        return Ok(Err(format!(
+            "the snapshot and journal give {} keyframes, the store holds {expected}",
+            index.len()
+        )));
+    }
+    Ok(Ok((index, pending.keys.len(), header.sequence)))
+}
+
 /// Writes the format version into a new store, upgrades a store of an
 /// older version this build still reads (its records stay as they are and
 /// are read by their own version byte), and refuses one of a newer version.
 fn check_format(meta: &sled::Tree) -> Result<(), StoreError> {
-    let supported = u32::from(codec::FORMAT_VERSION);
+    let supported = STORE_FORMAT;
     match meta.get(META_FORMAT)? {
         None => {
             meta.insert(META_FORMAT, &supported.to_be_bytes())?;
@@ -277,5 +520,7 @@ fn check_format(meta: &sled::Tree) -> Result<(), StoreError> {
     }
 }
 
+#[cfg(test)]
+mod restart_tests;
 #[cfg(test)]
 mod tests;

@@ -4,7 +4,7 @@
 use super::*;
 use humem_core::keyframe::{Features, ObjectObservation, TextObservation};
 
-fn kf(robot: &str, session: &str, id: u64, map: u64) -> SemanticKeyframe {
+pub(crate) fn kf(robot: &str, session: &str, id: u64, map: u64) -> SemanticKeyframe {
     SemanticKeyframe {
         key: KeyframeKey {
             robot_id: robot.into(),
@@ -38,7 +38,7 @@ fn kf(robot: &str, session: &str, id: u64, map: u64) -> SemanticKeyframe {
 
 /// Opens a store again once the previous handle's writer thread has let go
 /// of the directory (sled holds a lock on it until then).
-fn open_when_free(dir: &std::path::Path, dim: usize) -> Result<Store, StoreError> {
+pub(crate) fn open_when_free(dir: &std::path::Path, dim: usize) -> Result<Store, StoreError> {
     let deadline = std::time::Instant::now() + std::time::Duration::from_secs(5);
     loop {
         match Store::open(dir, dim, 16) {
@@ -54,7 +54,7 @@ fn reopen(dir: &std::path::Path, dim: usize) -> Store {
     open_when_free(dir, dim).unwrap()
 }
 
-fn session(robot: &str, session: &str) -> SessionKey {
+pub(crate) fn session(robot: &str, session: &str) -> SessionKey {
     SessionKey {
         robot_id: robot.into(),
         session_id: session.into(),
@@ -268,6 +268,6 @@ async fn a_version_1_store_opens_upgraded_and_keeps_its_records() {
     let meta = store.db.open_tree(META_TREE).unwrap();
     assert_eq!(
         meta.get(META_FORMAT).unwrap().unwrap().as_ref(),
-        &2u32.to_be_bytes()
+        &STORE_FORMAT.to_be_bytes()
     );
 }

@@ -7,12 +7,17 @@
 //! One thread owns all writes, so sled and the index change in the same
 //! order and no change is computed from a stale view.
 
+use std::collections::HashSet;
+use std::sync::atomic::{AtomicU64, Ordering};
 use std::sync::Arc;
 
 use parking_lot::RwLock;
+use sled::transaction::{ConflictableTransactionError, TransactionError, Transactional};
 use tokio::sync::{mpsc, oneshot};
 
+use super::checkpoint::Checkpoints;
 use super::codec::{self, decode_record, encode_key, encode_record};
+use super::journal;
 use super::{Index, MapKey, Mutation, MutationOutcome, PoseUpdate, StoreError, META_DIM};
 use humem_core::keyframe::{KeyframeKey, Pose, SemanticKeyframe, SessionKey};
 use humem_core::observe::SharedObserver;
@@ -27,6 +32,7 @@ pub(super) struct Trees {
     pub db: sled::Db,
     pub keyframes: sled::Tree,
     pub meta: sled::Tree,
+    pub journal: sled::Tree,
 }
 
 /// Sending side of the writer's queue.
@@ -61,17 +67,24 @@ impl WriterHandle {
 /// Starts the writer thread. It ends when every handle is dropped.
 pub(super) fn spawn(
     trees: Trees,
-    index: Arc<RwLock<Index>>,
+    checkpoints: Arc<Checkpoints>,
     capacity: usize,
     observer: SharedObserver,
 ) -> WriterHandle {
     let capacity = capacity.max(1);
     let (queue, receiver) = mpsc::channel(capacity);
-    let dim = index.read().dim();
+    let (dim, keyframes) = {
+        let index = checkpoints.index.read();
+        (index.dim(), index.len() as u64)
+    };
     let writer = Writer {
         trees,
-        index,
+        index: checkpoints.index.clone(),
         dim,
+        sequence: checkpoints.applied.load(Ordering::Acquire),
+        keyframes,
+        applied: checkpoints.applied.clone(),
+        checkpoints,
         observer: observer.clone(),
     };
     std::thread::Builder::new()
@@ -89,8 +102,23 @@ pub(super) fn spawn(
 #[derive(Default)]
 struct Staged {
     batch: sled::Batch,
+    /// The sled keys the batch writes or removes, for the journal.
+    keys: Vec<Vec<u8>>,
+    /// Keyframes the change adds to the store (negative: removes).
+    added: i64,
     outcome: MutationOutcome,
     changes: Vec<IndexChange>,
+}
+
+impl Staged {
+    /// Stages the removal of a stored keyframe.
+    fn remove(&mut self, bytes: Vec<u8>, key: KeyframeKey) {
+        self.batch.remove(bytes.clone());
+        self.keys.push(bytes);
+        self.added -= 1;
+        self.outcome.affected += 1;
+        self.changes.push(IndexChange::Remove(key));
+    }
 }
 
 /// A change to the index, made visible after the flush.
@@ -105,6 +133,13 @@ struct Writer {
     index: Arc<RwLock<Index>>,
     /// Descriptor length of the store; 0 until the first keyframe.
     dim: usize,
+    /// The last write sequence used.
+    sequence: u64,
+    /// Keyframes in sled after the last staged change.
+    keyframes: u64,
+    /// The sequence the index reflects, published with each group.
+    applied: Arc<AtomicU64>,
+    checkpoints: Arc<Checkpoints>,
     observer: SharedObserver,
 }
 
@@ -129,8 +164,9 @@ impl Writer {
     fn commit(&mut self, group: Vec<(Mutation, Reply)>) {
         let mut changes = Vec::new();
         let mut staged = Vec::with_capacity(group.len());
+        let mut journaled = 0;
         for (mutation, reply) in group {
-            let outcome = self.stage(mutation, &mut changes);
+            let outcome = self.stage(mutation, &mut changes, &mut journaled);
             staged.push((reply, outcome));
         }
         if let Err(e) = self.trees.db.flush() {
@@ -155,8 +191,10 @@ impl Writer {
                     }
                 }
             }
+            self.applied.store(self.sequence, Ordering::Release);
             index.len() as u64
         };
+        self.checkpoints.journaled(journaled);
         for (reply, outcome) in staged {
             let _ = reply.send(outcome.map(|mut o| {
                 o.store_keyframes = store_keyframes;
@@ -165,15 +203,15 @@ impl Writer {
         }
     }
 
-    /// Writes one change to sled (not yet flushed) and records what the
-    /// index must do once it is. A change that fails writes nothing.
     /// Stages one mutation: checks it, applies its writes to sled as one
-    /// batch and adds its index changes to `changes` (made visible after
-    /// the group's flush).
+    /// transaction with its journal entry (not yet flushed), and adds its
+    /// index changes to `changes` (made visible after the group's flush).
+    /// A change that fails writes nothing.
     fn stage(
         &mut self,
         mutation: Mutation,
         changes: &mut Vec<IndexChange>,
+        journaled: &mut u64,
     ) -> Result<MutationOutcome, StoreError> {
         let mut staged = Staged::default();
         match mutation {
@@ -188,7 +226,30 @@ impl Writer {
                 self.stage_pose_updates(&session, updates, &mut staged)?
             }
         }
-        self.trees.keyframes.apply_batch(staged.batch)?;
+        if staged.keys.is_empty() {
+            return Ok(staged.outcome);
+        }
+        let sequence = self.sequence + 1;
+        let keyframes = self.keyframes.saturating_add_signed(staged.added);
+        let entry = postcard::to_allocvec(&journal::Entry {
+            keyframes,
+            keys: std::mem::take(&mut staged.keys),
+        })
+        .map_err(|e| StoreError::Journal(e.to_string()))?;
+        let key = journal::key(sequence);
+        (&self.trees.keyframes, &self.trees.journal)
+            .transaction(|(keyframes, journal)| {
+                keyframes.apply_batch(&staged.batch)?;
+                journal.insert(&key, entry.as_slice())?;
+                Ok::<_, ConflictableTransactionError<()>>(())
+            })
+            .map_err(|e| match e {
+                TransactionError::Storage(e) => StoreError::Sled(e),
+                TransactionError::Abort(()) => StoreError::Journal("transaction aborted".into()),
+            })?;
+        self.sequence = sequence;
+        self.keyframes = keyframes;
+        *journaled += staged.changes.len() as u64;
         changes.extend(staged.changes);
         Ok(staged.outcome)
     }
@@ -220,12 +281,16 @@ impl Writer {
                 .insert(META_DIM, &(dim as u32).to_be_bytes())?;
             self.dim = dim;
         }
+        let mut seen = HashSet::new();
         for kf in keyframes {
             let key = encode_key(&kf.key);
-            if self.trees.keyframes.contains_key(&key)? {
+            if !seen.insert(key.clone()) || self.trees.keyframes.contains_key(&key)? {
                 staged.outcome.replaced += 1;
+            } else {
+                staged.added += 1;
             }
-            staged.batch.insert(key, encode_record(&kf));
+            staged.batch.insert(key.clone(), encode_record(&kf));
+            staged.keys.push(key);
             staged.changes.push(IndexChange::Upsert(kf));
         }
         Ok(())
@@ -238,13 +303,12 @@ impl Writer {
         keyframe_ids: Vec<u64>,
         staged: &mut Staged,
     ) -> Result<(), StoreError> {
+        let mut seen = HashSet::new();
         for keyframe_id in keyframe_ids {
             let key = session.keyframe(keyframe_id);
             let bytes = encode_key(&key);
-            if self.trees.keyframes.contains_key(&bytes)? {
-                staged.batch.remove(bytes);
-                staged.outcome.affected += 1;
-                staged.changes.push(IndexChange::Remove(key));
+            if seen.insert(keyframe_id) && self.trees.keyframes.contains_key(&bytes)? {
+                staged.remove(bytes, key);
             }
         }
         Ok(())
@@ -264,9 +328,7 @@ impl Writer {
         {
             let bytes = item?;
             let key = corrupt_key(&bytes)?;
-            staged.batch.remove(bytes);
-            staged.outcome.affected += 1;
-            staged.changes.push(IndexChange::Remove(key));
+            staged.remove(bytes.to_vec(), key);
         }
         Ok(())
     }
@@ -281,9 +343,7 @@ impl Writer {
             let (bytes, value) = item?;
             let record = decode(&bytes, &value)?;
             if record.map_id == map.map_id {
-                staged.batch.remove(bytes);
-                staged.outcome.affected += 1;
-                staged.changes.push(IndexChange::Remove(record.key));
+                staged.remove(bytes.to_vec(), record.key);
             }
         }
         Ok(())
@@ -314,7 +374,8 @@ impl Writer {
             if let Some(map_id) = map_id {
                 record.map_id = map_id;
             }
-            staged.batch.insert(bytes, encode_record(&record));
+            staged.batch.insert(bytes.clone(), encode_record(&record));
+            staged.keys.push(bytes);
             staged.outcome.affected += 1;
             staged.changes.push(IndexChange::Move(key, pose, map_id));
         }

@@ -205,7 +205,7 @@ impl PlaceRecognition for PlaceRecognitionService {
             descriptor_dim,
             maps,
             disk_bytes: self.pipeline.store().disk_bytes(),
-            format_version: u32::from(humem_store::codec::FORMAT_VERSION),
+            format_version: humem_store::STORE_FORMAT,
             server_version: env!("CARGO_PKG_VERSION").into(),
         }))
     }

@@ -50,7 +50,9 @@ fn quantize(values: &[f32], mut put: impl FnMut(usize, i8)) -> RowCode {
     } else {
         0.0
     };
-    let (mut residual, mut norm) = (0.0f64, 0.0f64);
+    // Four partial sums each, so that the additions do not wait on one
+    // another (this runs for every row loaded at start).
+    let (mut residual, mut norm) = ([0.0f64; 4], [0.0f64; 4]);
     let inverse = if scale > 0.0 { 1.0 / scale } else { 0.0 };
     for (i, &v) in values.iter().enumerate() {
         // Round half away from zero; `as` truncates and saturates (a plain
@@ -59,9 +61,10 @@ fn quantize(values: &[f32], mut put: impl FnMut(usize, i8)) -> RowCode {
         let c = (scaled + 0.5f32.copysign(scaled)).clamp(-127.0, 127.0) as i8;
         put(i, c);
         let error = f64::from(v) - f64::from(scale) * f64::from(c);
-        residual += error * error;
-        norm += f64::from(v) * f64::from(v);
+        residual[i % 4] += error * error;
+        norm[i % 4] += f64::from(v) * f64::from(v);
     }
+    let (residual, norm) = (residual.iter().sum::<f64>(), norm.iter().sum::<f64>());
     let up = |x: f64| (x.sqrt() * (1.0 + 1e-6)) as f32;
     RowCode {
         scale,
@@ -88,6 +91,24 @@ impl CodeMatrix {
     /// Whether there are no rows.
     pub fn is_empty(&self) -> bool {
         self.rows.is_empty()
+    }
+
+    /// The codes of `data`, rows of `dim` values, encoded on every core:
+    /// for loading a whole matrix at once.
+    pub fn from_rows(dim: usize, data: &[f32]) -> CodeMatrix {
+        use rayon::prelude::*;
+        let mut matrix = CodeMatrix::new(dim);
+        if dim == 0 {
+            return matrix;
+        }
+        let rows = data.len() / dim;
+        matrix.codes = vec![128; rows * matrix.stride];
+        matrix.rows = data
+            .par_chunks_exact(dim)
+            .zip(matrix.codes.par_chunks_exact_mut(matrix.stride))
+            .map(|(row, codes)| quantize(row, |i, c| codes[i] = (i16::from(c) + 128) as u8))
+            .collect();
+        matrix
     }
 
     /// Appends the codes of `row`.
@@ -239,6 +260,16 @@ mod tests {
                 v.iter().map(|x| x / norm).collect()
             })
             .collect()
+    }
+
+    #[test]
+    fn a_matrix_loaded_at_once_has_the_codes_of_one_built_row_by_row() {
+        for dim in [3, 100, 512] {
+            let rows = random_rows(dim as u64, 300, dim);
+            let mut pushed = CodeMatrix::new(dim);
+            rows.iter().for_each(|row| pushed.push(row));
+            assert_eq!(CodeMatrix::from_rows(dim, &rows.concat()), pushed);
+        }
     }
 
     #[test]

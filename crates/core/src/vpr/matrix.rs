@@ -36,6 +36,42 @@ impl DescriptorMatrix {
         }
     }
 
+    /// A matrix holding `data` as rows of `dim` values (row-major), with
+    /// their codes; for loading a stored matrix in one piece. Panics if
+    /// `data.len()` is not a multiple of `dim`.
+    pub fn from_rows(dim: usize, data: Vec<f32>) -> Self {
+        assert!(
+            dim > 0 && data.len().is_multiple_of(dim),
+            "{} values are not rows of {dim}",
+            data.len()
+        );
+        let codes = CodeMatrix::from_rows(dim, &data);
+        DescriptorMatrix {
+            dim,
+            rows: data.len() / dim,
+            data,
+            codes,
+        }
+    }
+
+    /// The matrix without the rows listed in `skip` (ascending), the
+    /// others in order.
+    pub fn without_rows(self, skip: &[usize]) -> Self {
+        let mut skip = skip.iter().peekable();
+        let mut data = Vec::with_capacity(self.data.len());
+        for (i, row) in self.data.chunks_exact(self.dim).enumerate() {
+            if skip.next_if_eq(&&i).is_none() {
+                data.extend_from_slice(row);
+            }
+        }
+        DescriptorMatrix::from_rows(self.dim, data)
+    }
+
+    /// All rows, row-major: `len() * dim()` values.
+    pub fn as_slice(&self) -> &[f32] {
+        &self.data
+    }
+
     /// Descriptor dimension `d`.
     pub fn dim(&self) -> usize {
         self.dim

@@ -125,6 +125,9 @@ pub enum BenchCommand {
     /// A SCAL-only query on large synthetic stores (100k and 1M keyframes by
     /// default) against an exact f32 dot-product scan, on one core and all.
     Scan(humem_eval::scan_bench::ScanBench),
+    /// Opening a large store from its index snapshot and journal against
+    /// rebuilding the index from every stored record.
+    Restart(humem_eval::restart_bench::RestartBench),
 }
 
 #[derive(Debug, Clone, Copy, PartialEq, Eq, clap::ValueEnum)]

@@ -1,0 +1,192 @@
+//! `humem bench restart`: how long the store takes to open on a large
+//! store, from its index snapshot plus the journal against rebuilding the
+//! index from every record in sled (the baseline, and what a store without
+//! a usable snapshot does), in the same run on the same store.
+//!
+//! Each size's store is written through the store's own writer (the
+//! service's write path, group commit and journal included), with the
+//! synthetic fleet of `humem bench scan`. A snapshot is taken, then
+//! `--replay` more keyframes are inserted and the store is dropped without
+//! another: what a SIGKILL leaves. Both opens then read files the kernel
+//! has just cached, as a restart on the same machine does; a cold disk adds
+//! its read time to both.
+
+use std::path::{Path, PathBuf};
+use std::time::Duration;
+
+use anyhow::{ensure, Context};
+
+use humem_store::{IndexSource, Mutation, Store, StoreOptions};
+
+use crate::scan_bench::{timed, SyntheticFleet};
+
+/// Options of `humem bench restart`.
+#[derive(Debug, Clone, clap::Args)]
+pub struct RestartBench {
+    /// Store sizes, in keyframes.
+    #[arg(long, value_delimiter = ',', default_values_t = [100_000, 1_000_000])]
+    pub rows: Vec<usize>,
+    /// Descriptor length.
+    #[arg(long, default_value_t = 512)]
+    pub dim: usize,
+    /// Keyframes inserted after the snapshot, replayed from the journal.
+    #[arg(long, default_value_t = 10_000)]
+    pub replay: usize,
+    /// Robots sharing the store.
+    #[arg(long, default_value_t = 8)]
+    pub robots: usize,
+    /// Directory the stores are made in (a temporary directory inside
+    /// it, removed afterwards).
+    #[arg(long, default_value_os_t = std::env::temp_dir())]
+    pub dir: PathBuf,
+}
+
+/// Keyframes per insert while the store is built.
+const BATCH: usize = 1000;
+
+/// One size's figures.
+struct Row {
+    rows: usize,
+    insert_rate: f64,
+    tree: Duration,
+    snapshot: Duration,
+    replayed: usize,
+    written: Duration,
+    synced: Duration,
+    bytes: u64,
+}
+
+fn options() -> StoreOptions {
+    StoreOptions {
+        snapshot_every: 0,
+        ..StoreOptions::default()
+    }
+}
+
+fn open(dir: &Path) -> anyhow::Result<Store> {
+    Store::open_with(dir, options(), humem_core::observe::unobserved())
+        .with_context(|| format!("opening the store in {}", dir.display()))
+}
+
+/// Gives a dropped store's writer thread time to flush and let go of the
+/// directory, so that the timed open does not wait for it.
+fn settle() {
+    std::thread::sleep(Duration::from_secs(1));
+}
+
+/// Opens the store once its previous handle's threads have let go of it.
+fn reopen(dir: &Path) -> anyhow::Result<Store> {
+    for _ in 0..250 {
+        match Store::open_with(dir, options(), humem_core::observe::unobserved()) {
+            Err(humem_store::StoreError::Open { .. }) => {
+                std::thread::sleep(Duration::from_millis(20))
+            }
+            other => return other.context("reopening the store"),
+        }
+    }
+    open(dir)
+}
+
+/// Runs the benchmark and prints the table.
+pub async fn restart(args: RestartBench) -> anyhow::Result<()> {
+    ensure!(args.dim > 0, "--dim must be at least 1");
+    ensure!(args.robots > 0, "--robots must be at least 1");
+    let mut table = Vec::new();
+    for &rows in &args.rows {
+        let parent = tempfile::tempdir_in(&args.dir)
+            .with_context(|| format!("making a store directory in {}", args.dir.display()))?;
+        let dir = parent.path();
+        eprintln!("bench restart: writing a store of {rows} x {}", args.dim);
+        let mut fleet = SyntheticFleet::new(rows + args.replay, args.dim, args.robots);
+        let store = open(dir)?;
+        let insert = |store: &Store, range: std::ops::Range<usize>, fleet: &mut SyntheticFleet| {
+            let keyframes = range.map(|i| fleet.keyframe(i)).collect();
+            let store = store.clone();
+            async move { store.apply(Mutation::Insert(keyframes)).await }
+        };
+        let started = std::time::Instant::now();
+        for start in (0..rows).step_by(BATCH) {
+            insert(&store, start..(start + BATCH).min(rows), &mut fleet).await?;
+        }
+        let insert_rate = rows as f64 / started.elapsed().as_secs_f64();
+        eprintln!("bench restart: taking a snapshot");
+        let report = store
+            .snapshot()?
+            .context("a new store has a snapshot to write")?;
+        for start in (rows..rows + args.replay).step_by(BATCH) {
+            insert(
+                &store,
+                start..(start + BATCH).min(rows + args.replay),
+                &mut fleet,
+            )
+            .await?;
+        }
+        drop(store);
+        settle();
+
+        eprintln!("bench restart: opening from the snapshot");
+        let (snapshot, store) = timed(|| reopen(dir));
+        let store = store?;
+        let IndexSource::Snapshot { replayed } = store.opened().source else {
+            anyhow::bail!(
+                "the store did not open from its snapshot: {:?}",
+                store.opened().source
+            );
+        };
+        let keyframes = store.index().len();
+        ensure!(
+            keyframes == rows + args.replay,
+            "{keyframes} keyframes after the snapshot open"
+        );
+        drop(store);
+        settle();
+
+        eprintln!("bench restart: opening from the tree");
+        let aside = dir.join("bench.snapshot");
+        std::fs::rename(humem_store::snapshot::path(dir), &aside)?;
+        let (tree, store) = timed(|| reopen(dir));
+        let store = store?;
+        ensure!(
+            matches!(store.opened().source, IndexSource::Tree { .. }),
+            "the store did not rebuild from the tree"
+        );
+        ensure!(
+            store.index().len() == keyframes,
+            "the tree and the snapshot disagree"
+        );
+        drop(store);
+        table.push(Row {
+            rows,
+            insert_rate,
+            tree,
+            snapshot,
+            replayed,
+            written: report.written,
+            synced: report.elapsed,
+            bytes: report.bytes,
+        });
+    }
+    println!(
+        "Store open, {}-d; ratio against rebuilding from the tree in the same run",
+        args.dim
+    );
+    println!(
+        "| keyframes | from the tree | from the snapshot + journal | keys replayed | snapshot written / synced | snapshot size | inserts while building |"
+    );
+    println!("| --- | --- | --- | --- | --- | --- | --- |");
+    for r in &table {
+        println!(
+            "| {} | {:.2} s | {:.2} s ({:.2}x) | {} | {:.2} s / {:.2} s | {:.2} GB | {:.0}/s |",
+            r.rows,
+            r.tree.as_secs_f64(),
+            r.snapshot.as_secs_f64(),
+            r.snapshot.as_secs_f64() / r.tree.as_secs_f64(),
+            r.replayed,
+            r.written.as_secs_f64(),
+            r.synced.as_secs_f64(),
+            r.bytes as f64 / 1e9,
+            r.insert_rate,
+        );
+    }
+    Ok(())
+}

@@ -1,0 +1,133 @@
+//! When index snapshots are taken, and the thread that takes them.
+//!
+//! The writer reports how many keys each committed change journaled; once
+//! `every` keys have been journaled since the last snapshot, a background
+//! thread writes a new one, so that replay at open stays bounded (about
+//! `every` sled reads) whatever the store's age. A snapshot is also taken
+//! at shutdown ([`crate::Store::snapshot`]), so a clean restart replays
+//! nothing.
+//!
+//! The snapshot thread takes the index's read lock only for a few
+//! milliseconds at a time (see [`snapshot::write`]), so the writer and the
+//! queries go on while it writes. Snapshots are spaced by changes, not by
+//! time: an idle store never writes one.
+
+use std::path::PathBuf;
+use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
+use std::sync::Arc;
+use std::time::{Duration, Instant};
+
+use parking_lot::{Mutex, RwLock};
+
+use crate::{journal, snapshot, Index, StoreError};
+
+/// One snapshot written.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct SnapshotReport {
+    /// The write sequence it reflects.
+    pub sequence: u64,
+    /// Keyframes in it.
+    pub keyframes: usize,
+    /// Its size in bytes.
+    pub bytes: u64,
+    /// Time to write it (into the page cache), before the sync.
+    pub written: Duration,
+    /// Time from start to the snapshot synced and in place.
+    pub elapsed: Duration,
+}
+
+/// What the snapshot thread needs, shared with the writer and the store.
+pub(crate) struct Checkpoints {
+    pub dir: PathBuf,
+    pub store_id: u128,
+    pub index: Arc<RwLock<Index>>,
+    /// The write sequence the index reflects; set by the writer while it
+    /// holds the index's write lock.
+    pub applied: Arc<AtomicU64>,
+    pub journal: sled::Tree,
+    pub meta: sled::Tree,
+    /// Journaled keys between automatic snapshots; 0: only on request.
+    pub every: u64,
+    /// Journaled keys since the last snapshot began.
+    pub since: AtomicU64,
+    /// Sequence of the newest snapshot on disk that matches this store
+    /// (`u64::MAX`: none).
+    pub written: AtomicU64,
+    /// Set while a background snapshot runs.
+    pub running: AtomicBool,
+    /// One snapshot at a time.
+    pub writing: Mutex<()>,
+}
+
+impl Checkpoints {
+    /// Counts `keys` more journaled keys; starts a background snapshot
+    /// when enough have gathered and none is running.
+    pub fn journaled(self: &Arc<Self>, keys: u64) {
+        let since = self.since.fetch_add(keys, Ordering::Relaxed) + keys;
+        if self.every > 0 && since >= self.every {
+            self.start_background();
+        }
+    }
+
+    /// Writes a snapshot on a background thread unless one is running.
+    pub fn start_background(self: &Arc<Self>) {
+        if self.running.swap(true, Ordering::AcqRel) {
+            return;
+        }
+        let this = self.clone();
+        let spawned = std::thread::Builder::new()
+            .name("humem-snapshot".into())
+            .spawn(move || {
+                if let Err(e) = this.write_now() {
+                    tracing::error!(error = %e, "writing the index snapshot failed");
+                }
+                this.running.store(false, Ordering::Release);
+            });
+        if let Err(e) = spawned {
+            tracing::error!(error = %e, "could not start the snapshot thread");
+            self.running.store(false, Ordering::Release);
+        }
+    }
+
+    /// Writes a snapshot of the index as it is now, unless the newest one
+    /// already reflects it; then drops the journal entries it covers.
+    /// Says what was written, if anything.
+    pub fn write_now(&self) -> Result<Option<SnapshotReport>, StoreError> {
+        let _one = self.writing.lock();
+        let started = Instant::now();
+        let applied = self.applied.load(Ordering::Acquire);
+        if applied == self.written.load(Ordering::Acquire) {
+            return Ok(None);
+        }
+        let keys = self.since.swap(0, Ordering::Relaxed);
+        let (unpublished, sequence) =
+            match snapshot::write(&self.dir, self.store_id, &self.index, &self.applied) {
+                Ok(written) => written,
+                Err(e) => {
+                    self.since.fetch_add(keys, Ordering::Relaxed);
+                    return Err(e.into());
+                }
+            };
+        let rows = self.index.read().len();
+        let written = started.elapsed();
+        let bytes = unpublished.publish()?;
+        self.written.store(sequence, Ordering::Release);
+        journal::truncate(&self.journal, &self.meta, sequence)?;
+        let report = SnapshotReport {
+            sequence,
+            keyframes: rows,
+            bytes,
+            written,
+            elapsed: started.elapsed(),
+        };
+        tracing::info!(
+            sequence,
+            keyframes = rows,
+            bytes,
+            written_ms = written.as_millis() as u64,
+            total_ms = report.elapsed.as_millis() as u64,
+            "index snapshot written"
+        );
+        Ok(Some(report))
+    }
+}

@@ -1,0 +1,304 @@
+//! Restart tests: the index loaded from a snapshot and the journal is the
+//! index rebuilt from the tree, after every kind of change, and a snapshot
+//! that does not fit the store is never used.
+
+use super::tests::{kf, open_when_free, session};
+use super::*;
+
+/// Opens `dir` with automatic snapshots off, so each test decides when
+/// one is written.
+fn open_manual(dir: &Path) -> Store {
+    let deadline = Instant::now() + Duration::from_secs(5);
+    loop {
+        let options = StoreOptions {
+            snapshot_every: 0,
+            queue_capacity: 16,
+            ..StoreOptions::default()
+        };
+        match Store::open_with(dir, options, humem_core::observe::unobserved()) {
+            Err(StoreError::Open { .. }) if Instant::now() < deadline => {
+                std::thread::sleep(Duration::from_millis(20))
+            }
+            result => return result.unwrap(),
+        }
+    }
+}
+
+/// Every keyframe of the store, in key order, with its predecessor's key:
+/// what a query can see.
+fn contents(store: &Store) -> Vec<(SemanticKeyframe, Option<KeyframeKey>)> {
+    let index = store.index();
+    let mut all: Vec<_> = (0..index.len())
+        .map(|row| {
+            let prev = humem_core::vpr::KeyframeMemory::predecessor(&*index, row)
+                .map(|p| index.meta(p).key.clone());
+            (index.keyframe(row), prev)
+        })
+        .collect();
+    all.sort_by(|a, b| a.0.key.cmp(&b.0.key));
+    all
+}
+
+/// What the tree alone says: the store reopened without its snapshot.
+fn rebuilt_from_tree(dir: &Path) -> Vec<(SemanticKeyframe, Option<KeyframeKey>)> {
+    let saved = dir.join("saved.snapshot");
+    std::fs::rename(snapshot::path(dir), &saved).unwrap();
+    let store = open_manual(dir);
+    assert!(matches!(store.opened().source, IndexSource::Tree { .. }));
+    let contents = contents(&store);
+    drop(store);
+    std::fs::rename(&saved, snapshot::path(dir)).unwrap();
+    contents
+}
+
+async fn insert(store: &Store, keyframes: Vec<SemanticKeyframe>) {
+    store.apply(Mutation::Insert(keyframes)).await.unwrap();
+}
+
+#[tokio::test]
+async fn a_clean_restart_loads_the_snapshot_and_replays_nothing() {
+    let dir = tempfile::tempdir().unwrap();
+    {
+        let store = open_manual(dir.path());
+        assert_eq!(
+            store.opened().source,
+            IndexSource::Tree {
+                reason: "no snapshot".into()
+            }
+        );
+        let mut batch: Vec<_> = (0..20).map(|i| kf("a", "s", i, i / 10)).collect();
+        batch[3].features.appearance = vec![7; humem_core::vpr::appearance::LEN];
+        insert(&store, batch).await;
+        assert!(store.snapshot().unwrap().is_some());
+        // Nothing changed since: no second snapshot.
+        assert_eq!(store.snapshot().unwrap(), None);
+    }
+    let store = open_manual(dir.path());
+    assert_eq!(store.opened().source, IndexSource::Snapshot { replayed: 0 });
+    let loaded = contents(&store);
+    drop(store);
+    assert_eq!(loaded.len(), 20);
+    assert_eq!(loaded, rebuilt_from_tree(dir.path()));
+}
+
+#[tokio::test]
+async fn changes_after_the_snapshot_are_replayed_from_the_journal() {
+    let dir = tempfile::tempdir().unwrap();
+    {
+        let store = open_manual(dir.path());
+        insert(&store, (0..30).map(|i| kf("a", "s", i, i / 10)).collect()).await;
+        insert(&store, (0..5).map(|i| kf("b", "s", i, 0)).collect()).await;
+        store.snapshot().unwrap();
+        // Every kind of change after it, as a crash would leave them.
+        insert(&store, vec![kf("a", "s", 30, 2), kf("c", "s", 0, 0)]).await;
+        let mut replaced = kf("a", "s", 4, 0);
+        replaced.features.descriptor = vec![0.5, 0.5, 0.5];
+        insert(&store, vec![replaced]).await;
+        let erase = Mutation::Erase {
+            session: session("a", "s"),
+            keyframe_ids: vec![1, 15, 15, 99],
+        };
+        assert_eq!(store.apply(erase).await.unwrap().affected, 2);
+        let reset_map = Mutation::ResetMap(MapKey {
+            session: session("a", "s"),
+            map_id: 1,
+        });
+        store.apply(reset_map).await.unwrap();
+        store
+            .apply(Mutation::ResetSession(session("b", "s")))
+            .await
+            .unwrap();
+        let moved = Mutation::UpdatePoses {
+            session: session("a", "s"),
+            updates: vec![PoseUpdate {
+                keyframe_id: 22,
+                pose: Pose::default(),
+                map_id: Some(0),
+            }],
+        };
+        store.apply(moved).await.unwrap();
+        // Dropped without a snapshot, as a kill leaves it.
+    }
+    let store = open_manual(dir.path());
+    let IndexSource::Snapshot { replayed } = store.opened().source else {
+        panic!("not from the snapshot: {:?}", store.opened().source);
+    };
+    assert!(replayed >= 20, "replayed {replayed}");
+    let loaded = contents(&store);
+    drop(store);
+    assert_eq!(loaded, rebuilt_from_tree(dir.path()));
+    assert!(loaded.iter().all(|(kf, _)| kf.key.robot_id != "b"));
+}
+
+#[tokio::test]
+async fn a_damaged_snapshot_is_not_used() {
+    let dir = tempfile::tempdir().unwrap();
+    {
+        let store = open_manual(dir.path());
+        insert(&store, (0..10).map(|i| kf("a", "s", i, 0)).collect()).await;
+        store.snapshot().unwrap();
+    }
+    let path = snapshot::path(dir.path());
+    let mut bytes = std::fs::read(&path).unwrap();
+    let last = bytes.len() - 1;
+    bytes[last] ^= 0x40;
+    std::fs::write(&path, &bytes).unwrap();
+    let store = open_manual(dir.path());
+    let IndexSource::Tree { reason } = &store.opened().source else {
+        panic!("used a damaged snapshot");
+    };
+    assert!(reason.contains("checksum"), "{reason}");
+    assert_eq!(store.index().len(), 10);
+}
+
+#[tokio::test]
+async fn another_stores_snapshot_is_not_used() {
+    let (one, other) = (tempfile::tempdir().unwrap(), tempfile::tempdir().unwrap());
+    for (dir, n) in [(&one, 3), (&other, 7)] {
+        let store = open_manual(dir.path());
+        insert(&store, (0..n).map(|i| kf("a", "s", i, 0)).collect()).await;
+        store.snapshot().unwrap();
+    }
+    std::fs::copy(snapshot::path(other.path()), snapshot::path(one.path())).unwrap();
+    let store = open_when_free(one.path(), 0).unwrap();
+    let IndexSource::Tree { reason } = &store.opened().source else {
+        panic!("used another store's snapshot");
+    };
+    assert!(reason.contains("another store"), "{reason}");
+    assert_eq!(store.index().len(), 3);
+}
+
+#[tokio::test]
+async fn a_snapshot_older_than_the_journal_is_not_used() {
+    let dir = tempfile::tempdir().unwrap();
+    let old = dir.path().join("old.snapshot");
+    {
+        let store = open_manual(dir.path());
+        insert(&store, vec![kf("a", "s", 0, 0)]).await;
+        store.snapshot().unwrap();
+        std::fs::copy(snapshot::path(dir.path()), &old).unwrap();
+        insert(&store, vec![kf("a", "s", 1, 0)]).await;
+        // The newer snapshot drops the journal entry the old one needs.
+        store.snapshot().unwrap();
+    }
+    std::fs::rename(&old, snapshot::path(dir.path())).unwrap();
+    let store = open_manual(dir.path());
+    let IndexSource::Tree { reason } = &store.opened().source else {
+        panic!("used a snapshot the journal cannot bring up to date");
+    };
+    assert!(reason.contains("older than the journal"), "{reason}");
+    assert_eq!(store.index().len(), 2);
+}
+
+#[tokio::test]
+async fn snapshots_follow_the_changes_and_bound_the_journal() {
+    let dir = tempfile::tempdir().unwrap();
+    let options = StoreOptions {
+        snapshot_every: 50,
+        ..StoreOptions::default()
+    };
+    let store = Store::open_with(dir.path(), options, humem_core::observe::unobserved()).unwrap();
+    for i in 0..30 {
+        insert(&store, (0..5).map(|j| kf("a", "s", i * 5 + j, 0)).collect()).await;
+    }
+    // 150 changes: at least two automatic snapshots, on their own thread.
+    let deadline = Instant::now() + Duration::from_secs(10);
+    while store
+        .checkpoints
+        .running
+        .load(std::sync::atomic::Ordering::Acquire)
+        || !snapshot::path(dir.path()).exists()
+    {
+        assert!(Instant::now() < deadline, "no snapshot was written");
+        std::thread::sleep(Duration::from_millis(10));
+    }
+    let floor = journal::floor(&store.checkpoints.meta).unwrap();
+    assert!(floor >= 10, "journal floor {floor}");
+    let left = store.checkpoints.journal.len() as u64;
+    assert!(
+        left <= 30 - floor,
+        "{left} entries left above floor {floor}"
+    );
+    drop(store);
+    let store = open_manual(dir.path());
+    assert!(matches!(
+        store.opened().source,
+        IndexSource::Snapshot { .. }
+    ));
+    assert_eq!(store.index().len(), 150);
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_snapshot_taken_while_the_store_changes_loads_as_the_tree() {
+    let dir = tempfile::tempdir().unwrap();
+    {
+        let store = open_manual(dir.path());
+        insert(&store, (0..60).map(|i| kf("a", "s", i, i / 20)).collect()).await;
+        insert(&store, (0..20).map(|i| kf("b", "s", i, 0)).collect()).await;
+        // Between chunks of 4 rows: removals (which move the last row into
+        // the hole), replacements, inserts, resets and pose moves.
+        let runtime = tokio::runtime::Handle::current();
+        let changing = store.clone();
+        let mut step = 0u64;
+        let mut between = move || {
+            step += 1;
+            let mutation = match step % 5 {
+                0 => Mutation::Erase {
+                    session: session("a", "s"),
+                    keyframe_ids: vec![step, step * 3 % 60],
+                },
+                1 => Mutation::Insert(vec![kf("c", "s", step, 0), kf("a", "s", step + 1, 1)]),
+                2 => Mutation::Erase {
+                    session: session("b", "s"),
+                    keyframe_ids: vec![step % 20],
+                },
+                3 => Mutation::UpdatePoses {
+                    session: session("a", "s"),
+                    updates: vec![PoseUpdate {
+                        keyframe_id: 59 - step % 60,
+                        pose: Pose::default(),
+                        map_id: Some(step % 3),
+                    }],
+                },
+                _ => Mutation::ResetMap(MapKey {
+                    session: session("c", "s"),
+                    map_id: 0,
+                }),
+            };
+            runtime.block_on(changing.apply(mutation)).unwrap();
+        };
+        let checkpoints = store.checkpoints.clone();
+        let (unpublished, sequence) = tokio::task::spawn_blocking(move || {
+            snapshot::write_in_chunks(
+                &checkpoints.dir,
+                checkpoints.store_id,
+                &checkpoints.index,
+                &checkpoints.applied,
+                Some(4),
+                &mut between,
+            )
+        })
+        .await
+        .unwrap()
+        .unwrap();
+        unpublished.publish().unwrap();
+        assert!(sequence >= 2);
+        assert!(
+            store
+                .checkpoints
+                .applied
+                .load(std::sync::atomic::Ordering::Acquire)
+                > sequence + 10,
+            "the store changed while the snapshot was written"
+        );
+    }
+    let store = open_manual(dir.path());
+    assert!(
+        matches!(store.opened().source, IndexSource::Snapshot { .. }),
+        "{:?}",
+        store.opened().source
+    );
+    let loaded = contents(&store);
+    drop(store);
+    assert_eq!(loaded, rebuilt_from_tree(dir.path()));
+}
