@@ -12,12 +12,12 @@ use std::net::SocketAddr;
 use std::sync::LazyLock;
 
 use prometheus::{
-    Encoder, HistogramOpts, HistogramVec, IntCounter, IntCounterVec, IntGauge, IntGaugeVec, Opts,
-    Registry, TextEncoder,
+    Encoder, GaugeVec, HistogramOpts, HistogramVec, IntCounter, IntCounterVec, IntGauge,
+    IntGaugeVec, Opts, Registry, TextEncoder,
 };
 
 use humem_core::observe::{QueueObserver, SharedObserver};
-use humem_store::Store;
+use humem_store::{IndexSource, Store};
 
 /// The registry every HuMem metric is in.
 pub static REGISTRY: LazyLock<Registry> = LazyLock::new(Registry::new);
@@ -198,6 +198,32 @@ pub static STORE_BYTES: LazyLock<IntGauge> = LazyLock::new(|| {
     register(IntGauge::new("humem_store_disk_bytes", "size of the sled store on disk").unwrap())
 });
 
+/// How the store was opened at start: seconds to a ready index, by where
+/// the index came from (`snapshot` or `tree`).
+pub static STORE_OPEN: LazyLock<GaugeVec> = LazyLock::new(|| {
+    register(
+        GaugeVec::new(
+            Opts::new(
+                "humem_store_open_seconds",
+                "time the store took to open at start, by where the index came from (snapshot or tree)",
+            ),
+            &["source"],
+        )
+        .unwrap(),
+    )
+});
+
+/// Keyframe keys replayed from the write journal at open.
+pub static STORE_REPLAYED: LazyLock<IntGauge> = LazyLock::new(|| {
+    register(
+        IntGauge::new(
+            "humem_store_open_replayed_keyframes",
+            "keyframe keys replayed from the write journal over the index snapshot at start",
+        )
+        .unwrap(),
+    )
+});
+
 /// Records one finished RPC.
 pub fn observe_rpc(rpc: &str, code: tonic::Code, seconds: f64) {
     RPC_REQUESTS
@@ -252,6 +278,15 @@ pub fn render(store: &Store) -> String {
             .set(count as i64);
     }
     STORE_BYTES.set(i64::try_from(store.disk_bytes()).unwrap_or(i64::MAX));
+    let opened = store.opened();
+    let (source, replayed) = match opened.source {
+        IndexSource::Snapshot { replayed } => ("snapshot", replayed),
+        IndexSource::Tree { .. } => ("tree", 0),
+    };
+    STORE_OPEN
+        .with_label_values(&[source])
+        .set(opened.elapsed.as_secs_f64());
+    STORE_REPLAYED.set(replayed as i64);
     let mut buffer = Vec::new();
     TextEncoder::new()
         .encode(&REGISTRY.gather(), &mut buffer)

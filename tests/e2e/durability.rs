@@ -19,7 +19,10 @@ async fn stats(server: &Server) -> proto::StatsResponse {
 #[tokio::test(flavor = "multi_thread")]
 async fn sigkill_after_acknowledged_inserts_loses_none() {
     let dir = tempfile::tempdir().unwrap();
-    let server = Server::start(dir.path());
+    // Index snapshots every 64 changes, written while inserts go on: the
+    // restart loads the newest and replays the journal after it.
+    let snapshots = ["HUMEM_STORE__SNAPSHOT_EVERY=64"];
+    let server = Server::start_with(dir.path(), &snapshots);
     let mut world = World::new(120, 4);
     let drive = scenes::loop_drive(&mut world, "r", "s", 0, 120, 80);
 
@@ -40,9 +43,14 @@ async fn sigkill_after_acknowledged_inserts_loses_none() {
     // Kill at once: the acknowledgements are all the client has.
     server.kill();
 
-    let server = Server::start(dir.path());
+    let server = Server::start_with(dir.path(), &snapshots);
     let stats = stats(&server).await;
     assert_eq!(stats.keyframes, 200);
+    let exposition = server.scrape();
+    assert!(
+        Server::sample(&exposition, "humem_store_open_seconds{source=\"snapshot\"}").is_some(),
+        "{exposition}"
+    );
     assert_eq!(stats.descriptor_dim, scenes::DIM as u32);
     // And they are usable: a revisit still finds its place.
     let (kf, place) = &drive[150];
@@ -68,8 +76,25 @@ async fn a_clean_restart_keeps_everything_and_exits_zero() {
     )
     .await;
     let before = stats(&server).await;
+    let opened = |server: &Server, source: &str| {
+        Server::sample(
+            &server.scrape(),
+            &format!("humem_store_open_seconds{{source=\"{source}\"}}"),
+        )
+    };
+    assert!(
+        opened(&server, "tree").is_some(),
+        "a new store is built from its tree"
+    );
     let server = server.restart();
     let after = stats(&server).await;
+    // The shutdown wrote an index snapshot, so the restart loads it and
+    // replays nothing.
+    assert!(opened(&server, "snapshot").is_some(), "{}", server.scrape());
+    assert_eq!(
+        Server::sample(&server.scrape(), "humem_store_open_replayed_keyframes"),
+        Some(0.0)
+    );
     assert_eq!(before.keyframes, 50);
     assert_eq!(after.keyframes, before.keyframes);
     assert_eq!(after.maps, before.maps);
