@@ -131,6 +131,10 @@ bool HuMemSettings::Load(const std::string &strSettingsFile)
         return false;
     ReadBool(fs, "HuMem.Enabled", &enabled);
     ReadString(fs, "HuMem.Address", &address);
+    ReadString(fs, "HuMem.TlsCaFile", &tlsCaFile);
+    ReadString(fs, "HuMem.TlsCertFile", &tlsCertFile);
+    ReadString(fs, "HuMem.TlsKeyFile", &tlsKeyFile);
+    ReadString(fs, "HuMem.TlsServerName", &tlsServerName);
     ReadString(fs, "HuMem.RobotId", &robotId);
     ReadString(fs, "HuMem.SessionId", &sessionId);
     ReadBool(fs, "HuMem.ResetSessionOnStart", &resetSessionOnStart);
@@ -174,6 +178,10 @@ KeyFrameDatabase* VprKeyFrameDatabase::Create(const ORBVocabulary &voc, const st
 
     humem::ClientOptions options;
     options.target = s.address;
+    options.tls_ca_file = s.tlsCaFile;
+    options.tls_cert_file = s.tlsCertFile;
+    options.tls_key_file = s.tlsKeyFile;
+    options.tls_server_name = s.tlsServerName;
     options.robot_id = s.robotId;
     options.session_id = s.sessionId;
     options.query_timeout = std::chrono::milliseconds(s.queryTimeoutMs);

@@ -59,6 +59,10 @@ struct HuMemSettings
 {
     bool enabled;                 // HuMem.Enabled (default 1; needs Address)
     std::string address;          // HuMem.Address, "host:port" (empty: disabled)
+    std::string tlsCaFile;        // HuMem.TlsCaFile: CA bundle, for an https:// address
+    std::string tlsCertFile;      // HuMem.TlsCertFile: client certificate (mutual TLS)
+    std::string tlsKeyFile;       // HuMem.TlsKeyFile: its key
+    std::string tlsServerName;    // HuMem.TlsServerName: name the certificate must hold
     std::string robotId;          // HuMem.RobotId (default "orbslam3")
     std::string sessionId;        // HuMem.SessionId (default: generated, unique)
     bool resetSessionOnStart;     // HuMem.ResetSessionOnStart (default 0)

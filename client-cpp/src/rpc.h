@@ -18,10 +18,21 @@
 
 namespace humem::internal {
 
-// "http://host:port" -> "host:port"; other targets pass unchanged.
+// "http://host:port", "https://host:port" -> "host:port"; other targets
+// pass unchanged.
 std::string NormaliseTarget(const std::string& target);
 
-std::shared_ptr<grpc::Channel> MakeChannel(const ClientOptions& options);
+// Whether the target asks for TLS ("https://").
+bool UsesTls(const std::string& target);
+
+// The channel credentials the options ask for: TLS with the CA, client
+// certificate and key read from their files for an "https://" target,
+// plaintext otherwise. INVALID_ARGUMENT naming the option when a file
+// cannot be read or the TLS options do not fit the target.
+Status MakeCredentials(const ClientOptions& options, std::shared_ptr<grpc::ChannelCredentials>* credentials);
+
+std::shared_ptr<grpc::Channel> MakeChannel(const ClientOptions& options,
+                                           const std::shared_ptr<grpc::ChannelCredentials>& credentials);
 
 Status FromGrpc(const grpc::Status& status);
 

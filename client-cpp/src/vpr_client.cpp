@@ -45,10 +45,10 @@ Status CheckOptions(const ClientOptions& o) {
 
 class VprClient::Impl {
  public:
-  explicit Impl(const ClientOptions& options)
+  Impl(const ClientOptions& options, const std::shared_ptr<grpc::ChannelCredentials>& credentials)
       : options_(options),
         session_id_(options.session_id),
-        channel_(internal::MakeChannel(options)),
+        channel_(internal::MakeChannel(options, credentials)),
         stub_(v1::PlaceRecognition::NewStub(channel_)),
         board_(options.result_history),
         writer_(stub_.get(), &calls_, options),
@@ -167,9 +167,11 @@ class VprClient::Impl {
 
 std::unique_ptr<VprClient> VprClient::Create(const ClientOptions& options, Status* status) {
   Status checked = CheckOptions(options);
+  std::shared_ptr<grpc::ChannelCredentials> credentials;
+  if (checked.ok()) checked = internal::MakeCredentials(options, &credentials);
   if (status) *status = checked;
   if (!checked.ok()) return nullptr;
-  return std::unique_ptr<VprClient>(new VprClient(new Impl(options)));
+  return std::unique_ptr<VprClient>(new VprClient(new Impl(options, credentials)));
 }
 
 VprClient::VprClient(Impl* impl) : impl_(impl) {}

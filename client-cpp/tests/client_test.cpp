@@ -143,10 +143,60 @@ TEST_F(ClientTest, BadInputIsRefusedWithTheFieldNamedAndDoesNotStallTheQueue) {
   // Bad options.
   humem::Status status;
   humem::ClientOptions no_robot;
-  no_robot.target = server_.address();
+  server_.Connect(&no_robot);
   EXPECT_EQ(humem::VprClient::Create(no_robot, &status), nullptr);
   EXPECT_EQ(status.code, StatusCode::kInvalidArgument);
   EXPECT_EQ(status.message, "ClientOptions.robot_id: required");
+
+  // TLS options that do not fit, or files that cannot be read.
+  humem::ClientOptions tls = no_robot;
+  tls.robot_id = "robot";
+  tls.target = server_.address();
+  tls.tls_ca_file = "ca.crt";
+  EXPECT_EQ(humem::VprClient::Create(tls, &status), nullptr);
+  EXPECT_EQ(status.code, StatusCode::kInvalidArgument);
+  EXPECT_NE(status.message.find("is not an https:// URL"), std::string::npos) << status.message;
+  tls.target = "https://" + server_.address();
+  tls.tls_ca_file = "/nonexistent/ca.crt";
+  EXPECT_EQ(humem::VprClient::Create(tls, &status), nullptr);
+  EXPECT_EQ(status.message, "ClientOptions.tls_ca_file: cannot read /nonexistent/ca.crt");
+  tls.tls_ca_file.clear();
+  tls.tls_cert_file = "client.crt";
+  EXPECT_EQ(humem::VprClient::Create(tls, &status), nullptr);
+  EXPECT_EQ(status.message, "ClientOptions.tls_cert_file/tls_key_file: give both or neither");
+}
+
+// Over TLS (HUMEM_TEST_TLS_DIR), a client that speaks plaintext or trusts
+// another CA gets no answer, and the server goes on serving.
+TEST_F(ClientTest, OverTlsOnlyAClientThatTrustsTheServerIsAnswered) {
+  const std::string tls = HumemServer::TlsDir();
+  if (tls.empty()) GTEST_SKIP() << "plaintext run (set HUMEM_TEST_TLS_DIR to run over TLS)";
+  auto stats = [&](humem::ClientOptions options) {
+    options.robot_id = "robot";
+    options.call_timeout = Ms(3000);
+    humem::Status status;
+    std::unique_ptr<humem::VprClient> client = humem::VprClient::Create(options, &status);
+    if (!client) return status;
+    humem::StoreStats out;
+    return client->Stats(&out);
+  };
+  humem::ClientOptions trusted;
+  server_.Connect(&trusted);
+  EXPECT_TRUE(stats(trusted).ok()) << stats(trusted).ToString();
+
+  humem::ClientOptions plaintext;
+  plaintext.target = server_.address();
+  EXPECT_EQ(stats(plaintext).code, StatusCode::kUnavailable);
+
+  humem::ClientOptions other_ca = trusted;
+  other_ca.tls_ca_file = tls + "/other-ca.crt";
+  EXPECT_EQ(stats(other_ca).code, StatusCode::kUnavailable);
+
+  humem::ClientOptions wrong_name = trusted;
+  wrong_name.tls_server_name = "humem.example";
+  EXPECT_EQ(stats(wrong_name).code, StatusCode::kUnavailable);
+
+  EXPECT_TRUE(stats(trusted).ok());
 }
 
 TEST_F(ClientTest, WaitForNeverBlocksPastItsDeadline) {

@@ -3,6 +3,11 @@
 // metrics on a free port, the store in a temporary directory, the gRPC port
 // read from the "humem listening on ADDR" line. Also stops, kills, freezes
 // (SIGSTOP) and restarts it on the same port and data directory.
+//
+// With HUMEM_TEST_TLS_DIR set (a directory holding ca.crt, server.crt and
+// server.key for "localhost", as scripts/test-client-cpp.sh makes them),
+// the server serves TLS and Connect() points clients at it over https://,
+// so the whole suite runs over TLS.
 #ifndef HUMEM_TESTS_HUMEM_SERVER_H_
 #define HUMEM_TESTS_HUMEM_SERVER_H_
 
@@ -10,6 +15,8 @@
 #include <sys/types.h>
 #include <thread>
 #include <vector>
+
+#include "humem/vpr_client.h"
 
 namespace humem_test {
 
@@ -46,6 +53,11 @@ class HumemServer {
 
   // "127.0.0.1:PORT" once started.
   std::string address() const;
+  // Points `options` at this server: the target, and the TLS settings when
+  // the tests run over TLS.
+  void Connect(humem::ClientOptions* options) const;
+  // The TLS directory the tests run with, or "" for plaintext.
+  static std::string TlsDir();
   int port() const { return port_; }
   pid_t pid() const { return pid_; }
 

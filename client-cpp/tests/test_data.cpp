@@ -45,7 +45,7 @@ humem::QueryRequest QueryWith(const std::vector<float>& descriptor, humem::Query
 
 std::unique_ptr<humem::VprClient> Connect(const HumemServer& server, const std::string& session,
                                           humem::ClientOptions options) {
-  options.target = server.address();
+  server.Connect(&options);
   options.robot_id = "robot";
   options.session_id = session;
   options.retry_backoff_initial = Ms(20);

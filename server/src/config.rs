@@ -62,6 +62,9 @@ pub struct ServerConfig {
     pub listen: SocketAddr,
     /// Largest request or response message, in bytes.
     pub max_message_bytes: usize,
+    /// TLS on the gRPC port (`[server.tls]`), off unless a certificate and
+    /// key are set.
+    pub tls: TlsSettings,
 }
 
 impl Default for ServerConfig {
@@ -69,7 +72,64 @@ impl Default for ServerConfig {
         ServerConfig {
             listen: SocketAddr::from(([127, 0, 0, 1], 50051)),
             max_message_bytes: 16 * 1024 * 1024,
+            tls: TlsSettings::default(),
         }
+    }
+}
+
+/// TLS settings of the gRPC port (`[server.tls]`). Off unless `cert` and
+/// `key` are set.
+#[derive(Debug, Clone, Default, PartialEq, Serialize, Deserialize)]
+#[serde(default, deny_unknown_fields)]
+pub struct TlsSettings {
+    /// PEM certificate chain the server presents, leaf first.
+    pub cert: Option<PathBuf>,
+    /// PEM private key of that certificate (PKCS#8, PKCS#1 or SEC1).
+    pub key: Option<PathBuf>,
+    /// PEM bundle of the CAs client certificates must chain to: set, the
+    /// server asks every client for a certificate (mutual TLS).
+    pub client_ca: Option<PathBuf>,
+    /// With `client_ca`: `required` refuses clients without a valid
+    /// certificate; `optional` verifies one when presented.
+    pub client_auth: ClientAuth,
+}
+
+/// Whether a client certificate is required under mutual TLS.
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "lowercase")]
+pub enum ClientAuth {
+    /// Every client must present a certificate from `client_ca`.
+    #[default]
+    Required,
+    /// A certificate is checked when a client presents one.
+    Optional,
+}
+
+impl TlsSettings {
+    /// Whether TLS is configured.
+    pub fn enabled(&self) -> bool {
+        self.cert.is_some() || self.key.is_some()
+    }
+
+    /// Checks that the settings make sense together (not the files).
+    pub fn validate(&self) -> Result<(), String> {
+        match (&self.cert, &self.key) {
+            (Some(_), None) => Err("server.tls.cert is set but server.tls.key is not".into()),
+            (None, Some(_)) => Err("server.tls.key is set but server.tls.cert is not".into()),
+            (None, None) if self.client_ca.is_some() => {
+                Err("server.tls.client_ca needs server.tls.cert and server.tls.key".into())
+            }
+            _ => Ok(()),
+        }
+    }
+
+    /// The files the settings name, to watch for changes.
+    pub fn files(&self) -> Vec<&Path> {
+        [&self.cert, &self.key, &self.client_ca]
+            .into_iter()
+            .flatten()
+            .map(PathBuf::as_path)
+            .collect()
     }
 }
 
@@ -191,10 +251,20 @@ impl Config {
             }
             figment = figment.merge(Toml::file(file));
         }
-        // HUMEM_CONFIG names the file, HUMEM_SERVER_URL is for the client,
-        // HUMEM_BIN names the binary for test scripts and HUMEM_ORT_PACKAGE
-        // is read by scripts/setup-models.sh: none is a setting.
-        const NOT_SETTINGS: [&str; 4] = ["config", "server_url", "bin", "ort_package"];
+        // HUMEM_CONFIG names the file, HUMEM_SERVER_URL and HUMEM_TLS_* are
+        // for the clients, HUMEM_BIN names the binary for test scripts and
+        // HUMEM_ORT_PACKAGE is read by scripts/setup-models.sh: none is a
+        // setting.
+        const NOT_SETTINGS: [&str; 8] = [
+            "config",
+            "server_url",
+            "tls_ca",
+            "tls_cert",
+            "tls_key",
+            "tls_server_name",
+            "bin",
+            "ort_package",
+        ];
         let env = Env::prefixed("HUMEM_")
             .filter(|key| !NOT_SETTINGS.contains(&key.as_str()))
             .split("__");
@@ -222,6 +292,7 @@ impl Config {
                 "store.write_queue must be at least 1".into(),
             ));
         }
+        self.server.tls.validate().map_err(ConfigError::Invalid)?;
         if self.server.max_message_bytes < 1024 {
             return Err(ConfigError::Invalid(
                 "server.max_message_bytes must be at least 1024".into(),

@@ -10,6 +10,7 @@
 //! - [`server`]: builds the store, perception and service from a
 //!   [`config::Config`], serves gRPC (with health and reflection) and
 //!   metrics, and shuts down cleanly;
+//! - [`tls`]: TLS on the gRPC port, reloaded when its files change;
 //! - [`api`]: the tonic service, a thin adapter: validates a request, hands
 //!   it to the pipeline, converts the answer;
 //! - [`pipeline`]: what one request does, in domain types: admission, image
@@ -25,6 +26,7 @@ pub mod config;
 pub mod metrics;
 pub mod pipeline;
 pub mod server;
+pub mod tls;
 
 /// The generated gRPC API (`proto/humem/v1/humem.proto`), with its proto3
 /// JSON mapping for the command-line client.

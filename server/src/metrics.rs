@@ -224,6 +224,32 @@ pub static STORE_REPLAYED: LazyLock<IntGauge> = LazyLock::new(|| {
     )
 });
 
+/// Reloads of the TLS certificate files, by result (`ok`, `error`: the
+/// previous certificate stays in use).
+pub static TLS_RELOADS: LazyLock<IntCounterVec> = LazyLock::new(|| {
+    register(
+        IntCounterVec::new(
+            Opts::new(
+                "humem_tls_reloads_total",
+                "reloads of the TLS certificate files after they changed, by result",
+            ),
+            &["result"],
+        )
+        .unwrap(),
+    )
+});
+
+/// TLS handshakes that failed or timed out on the gRPC port.
+pub static TLS_HANDSHAKE_FAILURES: LazyLock<IntCounter> = LazyLock::new(|| {
+    register(
+        IntCounter::new(
+            "humem_tls_handshake_failures_total",
+            "TLS handshakes on the gRPC port that failed or timed out",
+        )
+        .unwrap(),
+    )
+});
+
 /// Records one finished RPC.
 pub fn observe_rpc(rpc: &str, code: tonic::Code, seconds: f64) {
     RPC_REQUESTS
@@ -338,6 +364,10 @@ pub fn init() {
         QUERIES_SUPERSEDED.with_label_values(&[kind]);
         QUERIES_REFUSED.with_label_values(&[kind]);
     }
+    for result in ["ok", "error"] {
+        TLS_RELOADS.with_label_values(&[result]);
+    }
+    LazyLock::force(&TLS_HANDSHAKE_FAILURES);
     LazyLock::force(&RPC_REQUESTS);
     LazyLock::force(&RPC_DURATION);
     LazyLock::force(&STAGE_DURATION);

@@ -116,15 +116,31 @@ pub async fn serve(config: Config) -> anyhow::Result<()> {
         println!("humem metrics on {addr}");
     }
 
+    // TLS first: a certificate that cannot be loaded stops the start
+    // before the port is bound.
+    let tls = if config.server.tls.enabled() {
+        Some(
+            crate::tls::ReloadingTls::start(config.server.tls.clone())
+                .context("loading the TLS certificate (server.tls)")?,
+        )
+    } else {
+        None
+    };
     let listener = TcpListener::bind(config.server.listen)
         .await
         .with_context(|| format!("binding {}", config.server.listen))?;
     let local = listener.local_addr()?;
-    tracing::info!(%local, data_dir = %config.store.data_dir.display(), "humem serving");
+    tracing::info!(
+        %local,
+        tls = tls.is_some(),
+        mutual_tls = tls.is_some() && config.server.tls.client_ca.is_some(),
+        data_dir = %config.store.data_dir.display(),
+        "humem serving"
+    );
     // One plain line on stdout, for scripts and tests that asked for port 0.
     println!("humem listening on {local}");
 
-    tonic::transport::Server::builder()
+    let router = tonic::transport::Server::builder()
         // Outermost, so that it records the code the client receives.
         .layer(crate::api::rpc_metrics::RpcMetricsLayer)
         .layer(tower::util::MapResponseLayer::new(
@@ -133,22 +149,33 @@ pub async fn serve(config: Config) -> anyhow::Result<()> {
         .add_service(health_service)
         .add_service(reflection_v1)
         .add_service(reflection_v1alpha)
-        .add_service(api)
+        .add_service(api);
+    let shutdown = async move {
+        shutdown_signal().await;
+        tracing::info!("shutdown requested: finishing in-flight requests");
+        let _ = stop_tx.send(true);
+        health
+            .set_not_serving::<PlaceRecognitionServer<PlaceRecognitionService>>()
+            .await;
+    };
+    match tls {
+        Some(tls) => {
+            router
+                .serve_with_incoming_shutdown(crate::tls::TlsIncoming::new(listener, tls), shutdown)
+                .await
+        }
         // TCP_NODELAY: without it, small answers wait ~40 ms for delayed
         // ACKs (Nagle), which `humem load` showed on every call.
-        .serve_with_incoming_shutdown(
-            TcpIncoming::from(listener).with_nodelay(Some(true)),
-            async move {
-                shutdown_signal().await;
-                tracing::info!("shutdown requested: finishing in-flight requests");
-                let _ = stop_tx.send(true);
-                health
-                    .set_not_serving::<PlaceRecognitionServer<PlaceRecognitionService>>()
-                    .await;
-            },
-        )
-        .await
-        .context("running the gRPC server")?;
+        None => {
+            router
+                .serve_with_incoming_shutdown(
+                    TcpIncoming::from(listener).with_nodelay(Some(true)),
+                    shutdown,
+                )
+                .await
+        }
+    }
+    .context("running the gRPC server")?;
 
     store.flush().context("flushing the store at shutdown")?;
     // A current snapshot lets the next start skip the journal replay; the

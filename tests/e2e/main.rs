@@ -18,3 +18,4 @@ mod maintenance;
 mod metrics;
 mod retrieval;
 mod text_recall;
+mod tls;

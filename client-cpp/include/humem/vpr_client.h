@@ -78,8 +78,19 @@ struct WriteStats {
 };
 
 struct ClientOptions {
-  // The server: "host:port", or "http://host:port" (as in HUMEM_SERVER_URL).
+  // The server: "host:port", or "http://host:port" (as in HUMEM_SERVER_URL);
+  // "https://host:port" connects over TLS.
   std::string target;
+  // TLS, for an "https://" target only. tls_ca_file: PEM bundle of the CAs
+  // the server's certificate must chain to (empty: gRPC's default roots).
+  // tls_cert_file and tls_key_file (both or neither): the client's PEM
+  // certificate chain and key, for a server that requires mutual TLS.
+  // tls_server_name: the name checked against the server's certificate,
+  // when it is not the target's host (e.g. connecting by IP address).
+  std::string tls_ca_file;
+  std::string tls_cert_file;
+  std::string tls_key_file;
+  std::string tls_server_name;
   // Robot and session that every request is made for. robot_id is required.
   std::string robot_id;
   std::string session_id;

@@ -86,8 +86,13 @@ fn seconds(timings: &[proto::StageTiming], stage: &str) -> f64 {
 
 impl Remote {
     /// Connects and names the run's robots and session.
-    pub async fn connect(url: &str, dataset: &Dataset, top_n: usize) -> anyhow::Result<Remote> {
-        let client = humem_server::client::connect(url).await?;
+    pub async fn connect(
+        url: &str,
+        tls: &humem_server::client::ClientTls,
+        dataset: &Dataset,
+        top_n: usize,
+    ) -> anyhow::Result<Remote> {
+        let client = humem_server::client::connect(url, tls).await?;
         let run = format!(
             "{}-{}",
             std::process::id(),

@@ -82,6 +82,9 @@ pub struct EvalArgs {
     /// the library in this process (e.g. http://127.0.0.1:50051).
     #[arg(long, value_name = "URL")]
     pub server: Option<String>,
+    /// TLS to that server (`--tls-ca`, `--tls-cert`, `--tls-key`).
+    #[command(flatten)]
+    pub tls: humem_server::client::ClientTls,
     /// Where objects come from: the perception models, or the data set's
     /// instance masks (`annotations`, in-process only) to measure the object
     /// and text layers without a detector's errors.
@@ -661,7 +664,8 @@ impl Backend {
                     anyhow::bail!("--objects annotations replaces perception, so it runs in-process only, not with --server");
                 }
                 let mut remote =
-                    super::remote::Remote::connect(url, dataset, config.vpr.top_k).await?;
+                    super::remote::Remote::connect(url, &args.tls, dataset, config.vpr.top_k)
+                        .await?;
                 remote.insert_references(dataset).await?;
                 Ok(Backend::Remote(Box::new(remote)))
             }

@@ -69,7 +69,7 @@ pub async fn run_client(command: Command) -> anyhow::Result<()> {
             if keyframes.is_empty() {
                 bail!("no keyframes in {}", file.display());
             }
-            let mut client = connect(&server.server).await?;
+            let mut client = connect(&server.server, &server.tls).await?;
             let mut replaced = 0;
             let mut stored = 0;
             for chunk in keyframes.chunks(batch.max(1)) {
@@ -99,7 +99,7 @@ pub async fn run_client(command: Command) -> anyhow::Result<()> {
             } else {
                 Output::Json
             });
-            let mut client = connect(&server.server).await?;
+            let mut client = connect(&server.server, &server.tls).await?;
             for query in queries {
                 let reply = client
                     .query(query.clone())
@@ -117,7 +117,7 @@ pub async fn run_client(command: Command) -> anyhow::Result<()> {
             session,
             keyframe_ids,
         } => {
-            let reply = connect(&server.server)
+            let reply = connect(&server.server, &server.tls)
                 .await?
                 .erase(proto::EraseRequest {
                     robot_id: session.robot,
@@ -133,7 +133,7 @@ pub async fn run_client(command: Command) -> anyhow::Result<()> {
             session,
             map,
         } => {
-            let reply = connect(&server.server)
+            let reply = connect(&server.server, &server.tls)
                 .await?
                 .reset_map(proto::ResetMapRequest {
                     robot_id: session.robot,
@@ -145,7 +145,7 @@ pub async fn run_client(command: Command) -> anyhow::Result<()> {
             println!("erased {}", reply.get_ref().erased);
         }
         Command::ResetSession { server, session } => {
-            let reply = connect(&server.server)
+            let reply = connect(&server.server, &server.tls)
                 .await?
                 .reset_session(proto::ResetSessionRequest {
                     robot_id: session.robot,
@@ -156,7 +156,7 @@ pub async fn run_client(command: Command) -> anyhow::Result<()> {
             println!("erased {}", reply.get_ref().erased);
         }
         Command::Stats { server } => {
-            let reply = connect(&server.server)
+            let reply = connect(&server.server, &server.tls)
                 .await?
                 .stats(proto::StatsRequest {})
                 .await

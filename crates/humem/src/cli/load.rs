@@ -31,6 +31,8 @@ pub struct LoadArgs {
         default_value = "http://127.0.0.1:50051"
     )]
     pub server: String,
+    #[command(flatten)]
+    pub tls: humem_server::client::ClientTls,
     /// Simulated robots.
     #[arg(long, default_value_t = 8)]
     pub robots: usize,
@@ -249,11 +251,7 @@ pub async fn run(args: LoadArgs) -> anyhow::Result<()> {
         Some(dir) => Content::Images(Arc::new(load_images(dir)?)),
         None => Content::Synthetic(args.dim.max(1)),
     });
-    let channel = Channel::from_shared(args.server.clone())
-        .with_context(|| format!("invalid server URL {:?}", args.server))?
-        .connect()
-        .await
-        .with_context(|| format!("connecting to {}", args.server))?;
+    let channel = humem_server::client::channel(&args.server, &args.tls).await?;
     let client = PlaceRecognitionClient::new(channel).max_encoding_message_size(64 << 20);
     let tallies = Tallies {
         insert: Arc::new(Mutex::new(Tally::new())),

@@ -177,6 +177,8 @@ pub struct ServerArg {
         default_value = "http://127.0.0.1:50051"
     )]
     pub server: String,
+    #[command(flatten)]
+    pub tls: humem_server::client::ClientTls,
 }
 
 /// Robot and session of a maintenance command.
