@@ -5,10 +5,15 @@
 //! An `https://` URL connects over TLS, trusting the CA given with
 //! `--tls-ca` (or the system's roots without one), and presenting a client
 //! certificate when `--tls-cert` and `--tls-key` are given (mutual TLS).
+//! `--token` sends a bearer token with every call; only over TLS, so that
+//! it never crosses the network in the clear.
 
 use std::path::{Path, PathBuf};
 
 use anyhow::{bail, Context};
+use tonic::metadata::MetadataValue;
+use tonic::service::interceptor::InterceptedService;
+use tonic::service::Interceptor;
 use tonic::transport::{Certificate, Channel, ClientTlsConfig, Identity};
 
 use crate::proto::place_recognition_client::PlaceRecognitionClient;
@@ -16,9 +21,19 @@ use crate::proto::place_recognition_client::PlaceRecognitionClient;
 /// Largest message a client sends or accepts (the server's default limit).
 const MAX_MESSAGE_BYTES: usize = 64 << 20;
 
-/// How a client authenticates the server, and itself, over TLS.
+/// How a client checks the server and proves who it is: TLS options and
+/// a bearer token.
 #[derive(Debug, Clone, Default, clap::Args)]
-pub struct ClientTls {
+pub struct ClientCredentials {
+    /// Bearer token from `humem token add`, sent with every call (needs an
+    /// `https://` URL).
+    #[arg(
+        long,
+        env = "HUMEM_TOKEN",
+        value_name = "TOKEN",
+        hide_env_values = true
+    )]
+    pub token: Option<String>,
     /// PEM CA bundle the server's certificate must chain to (an `https://`
     /// URL without it trusts the system's roots).
     #[arg(long, env = "HUMEM_TLS_CA", value_name = "PEM")]
@@ -35,7 +50,7 @@ pub struct ClientTls {
     pub tls_server_name: Option<String>,
 }
 
-impl ClientTls {
+impl ClientCredentials {
     fn is_set(&self) -> bool {
         self.tls_ca.is_some() || self.tls_cert.is_some() || self.tls_server_name.is_some()
     }
@@ -59,9 +74,51 @@ impl ClientTls {
     }
 }
 
-/// A channel to the server at `url` (`http://HOST:PORT` or
+/// Adds `authorization: Bearer <token>` to every call, when there is a
+/// token.
+#[derive(Clone)]
+pub struct BearerToken(Option<MetadataValue<tonic::metadata::Ascii>>);
+
+impl Interceptor for BearerToken {
+    fn call(
+        &mut self,
+        mut request: tonic::Request<()>,
+    ) -> Result<tonic::Request<()>, tonic::Status> {
+        if let Some(value) = &self.0 {
+            request
+                .metadata_mut()
+                .insert("authorization", value.clone());
+        }
+        Ok(request)
+    }
+}
+
+/// A connection to a server: the channel, and the token its calls carry.
+pub type Connection = InterceptedService<Channel, BearerToken>;
+
+/// A connection to the server at `url` (`http://HOST:PORT` or
 /// `https://HOST:PORT`).
-pub async fn channel(url: &str, tls: &ClientTls) -> anyhow::Result<Channel> {
+pub async fn channel(url: &str, tls: &ClientCredentials) -> anyhow::Result<Connection> {
+    let token = match &tls.token {
+        None => None,
+        Some(_) if !url.starts_with("https://") => {
+            bail!("a token is only sent over TLS, and {url} is not an https:// URL")
+        }
+        Some(token) => {
+            let mut value: MetadataValue<_> = format!("Bearer {token}")
+                .parse()
+                .context("the token is not valid header text")?;
+            value.set_sensitive(true);
+            Some(value)
+        }
+    };
+    Ok(InterceptedService::new(
+        raw_channel(url, tls).await?,
+        BearerToken(token),
+    ))
+}
+
+async fn raw_channel(url: &str, tls: &ClientCredentials) -> anyhow::Result<Channel> {
     let mut endpoint = Channel::from_shared(url.to_string())
         .with_context(|| format!("invalid server URL {url:?}"))?;
     if url.starts_with("https://") {
@@ -80,8 +137,8 @@ pub async fn channel(url: &str, tls: &ClientTls) -> anyhow::Result<Channel> {
 /// Connects to the server at `url`.
 pub async fn connect(
     url: &str,
-    tls: &ClientTls,
-) -> anyhow::Result<PlaceRecognitionClient<Channel>> {
+    tls: &ClientCredentials,
+) -> anyhow::Result<PlaceRecognitionClient<Connection>> {
     Ok(PlaceRecognitionClient::new(channel(url, tls).await?)
         .max_decoding_message_size(MAX_MESSAGE_BYTES)
         .max_encoding_message_size(MAX_MESSAGE_BYTES))

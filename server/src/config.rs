@@ -32,6 +32,27 @@ pub struct Config {
     pub metrics: MetricsConfig,
     /// Log output (`[log]`).
     pub log: LogConfig,
+    /// Who may call, and read which maps (`[auth]`).
+    pub auth: AuthConfig,
+}
+
+/// Authentication and access rules. Off (every caller may do everything,
+/// as on a vehicle's loopback sidecar) unless `tokens_file` is set or the
+/// gRPC port requires client certificates (`server.tls.client_ca`).
+#[derive(Debug, Clone, Default, PartialEq, Serialize, Deserialize)]
+#[serde(default, deny_unknown_fields)]
+pub struct AuthConfig {
+    /// The token file `humem token` manages (hashed bearer tokens); read
+    /// again within a second of a change.
+    pub tokens_file: Option<PathBuf>,
+    /// Fleet groups: every robot of a group reads the maps of every other
+    /// robot of that group. A robot reads its own maps always, and no one
+    /// else's unless a group shares them (admins read everything).
+    pub groups: std::collections::BTreeMap<String, Vec<String>>,
+    /// Common names of client certificates that act as admins (any other
+    /// verified client certificate speaks for the robot its common name
+    /// names).
+    pub certificate_admins: Vec<String>,
 }
 
 /// The Prometheus endpoint.
@@ -65,6 +86,11 @@ pub struct ServerConfig {
     /// TLS on the gRPC port (`[server.tls]`), off unless a certificate and
     /// key are set.
     pub tls: TlsSettings,
+    /// Serve a non-loopback address without TLS or without credentials.
+    /// Off, such a start is refused: anyone who reaches the port could
+    /// write, read and wipe every robot's maps. Turn on only behind
+    /// something that does both (a TLS-terminating, authenticating proxy).
+    pub allow_insecure_network: bool,
 }
 
 impl Default for ServerConfig {
@@ -73,6 +99,7 @@ impl Default for ServerConfig {
             listen: SocketAddr::from(([127, 0, 0, 1], 50051)),
             max_message_bytes: 16 * 1024 * 1024,
             tls: TlsSettings::default(),
+            allow_insecure_network: false,
         }
     }
 }
@@ -251,13 +278,14 @@ impl Config {
             }
             figment = figment.merge(Toml::file(file));
         }
-        // HUMEM_CONFIG names the file, HUMEM_SERVER_URL and HUMEM_TLS_* are
+        // HUMEM_CONFIG names the file, HUMEM_SERVER_URL, HUMEM_TOKEN and HUMEM_TLS_* are
         // for the clients, HUMEM_BIN names the binary for test scripts and
         // HUMEM_ORT_PACKAGE is read by scripts/setup-models.sh: none is a
         // setting.
-        const NOT_SETTINGS: [&str; 8] = [
+        const NOT_SETTINGS: [&str; 9] = [
             "config",
             "server_url",
+            "token",
             "tls_ca",
             "tls_cert",
             "tls_key",
@@ -266,7 +294,11 @@ impl Config {
             "ort_package",
         ];
         let env = Env::prefixed("HUMEM_")
-            .filter(|key| !NOT_SETTINGS.contains(&key.as_str()))
+            .filter(|key| {
+                !NOT_SETTINGS
+                    .iter()
+                    .any(|name| key.as_str().eq_ignore_ascii_case(name))
+            })
             .split("__");
         let config: Config = figment
             .merge(env)
@@ -293,6 +325,13 @@ impl Config {
             ));
         }
         self.server.tls.validate().map_err(ConfigError::Invalid)?;
+        for (group, robots) in &self.auth.groups {
+            if robots.iter().any(String::is_empty) {
+                return Err(ConfigError::Invalid(format!(
+                    "auth.groups.{group}: robot ids must not be empty"
+                )));
+            }
+        }
         if self.server.max_message_bytes < 1024 {
             return Err(ConfigError::Invalid(
                 "server.max_message_bytes must be at least 1024".into(),

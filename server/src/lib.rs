@@ -11,6 +11,8 @@
 //!   [`config::Config`], serves gRPC (with health and reflection) and
 //!   metrics, and shuts down cleanly;
 //! - [`tls`]: TLS on the gRPC port, reloaded when its files change;
+//! - [`auth`]: credentials (tokens, client certificates), who may act for
+//!   which robot and read which maps, the audit trail;
 //! - [`api`]: the tonic service, a thin adapter: validates a request, hands
 //!   it to the pipeline, converts the answer;
 //! - [`pipeline`]: what one request does, in domain types: admission, image
@@ -21,12 +23,14 @@
 //! - [`proto`]: the generated API types and services.
 
 pub mod api;
+pub mod auth;
 pub mod client;
 pub mod config;
 pub mod metrics;
 pub mod pipeline;
 pub mod server;
 pub mod tls;
+mod watch;
 
 /// The generated gRPC API (`proto/humem/v1/humem.proto`), with its proto3
 /// JSON mapping for the command-line client.

@@ -250,6 +250,21 @@ pub static TLS_HANDSHAKE_FAILURES: LazyLock<IntCounter> = LazyLock::new(|| {
     )
 });
 
+/// Requests refused by authentication or access rules, by RPC and reason
+/// (`unauthenticated`, `permission_denied`): bounded labels, no robot ids.
+pub static AUTH_DENIED: LazyLock<IntCounterVec> = LazyLock::new(|| {
+    register(
+        IntCounterVec::new(
+            Opts::new(
+                "humem_auth_denied_total",
+                "requests refused for a missing or invalid credential or for acting beyond it, by RPC and reason",
+            ),
+            &["rpc", "reason"],
+        )
+        .unwrap(),
+    )
+});
+
 /// Records one finished RPC.
 pub fn observe_rpc(rpc: &str, code: tonic::Code, seconds: f64) {
     RPC_REQUESTS
@@ -368,6 +383,7 @@ pub fn init() {
         TLS_RELOADS.with_label_values(&[result]);
     }
     LazyLock::force(&TLS_HANDSHAKE_FAILURES);
+    LazyLock::force(&AUTH_DENIED);
     LazyLock::force(&RPC_REQUESTS);
     LazyLock::force(&RPC_DURATION);
     LazyLock::force(&STAGE_DURATION);
@@ -382,10 +398,16 @@ pub fn init() {
     LazyLock::force(&STORE_BYTES);
 }
 
-/// Serves `/metrics` on `listen` until `shutdown` resolves.
+/// Serves `/metrics` on `listen` until `shutdown` resolves, with plain
+/// HTTP probes beside it: `/healthz` (200 while the process answers) and
+/// `/readyz` (200 while `serving` is true: the gRPC port is open and no
+/// shutdown has begun; else 503). They are for probes that cannot speak
+/// TLS to the gRPC port (Kubernetes' gRPC probes cannot), and need no
+/// credential, like the gRPC health service.
 pub async fn serve(
     listen: SocketAddr,
     store: Store,
+    serving: tokio::sync::watch::Receiver<bool>,
     shutdown: impl std::future::Future<Output = ()> + Send + 'static,
 ) -> anyhow::Result<SocketAddr> {
     use anyhow::Context;
@@ -393,21 +415,36 @@ pub async fn serve(
         .await
         .with_context(|| format!("binding the metrics endpoint {listen}"))?;
     let local = listener.local_addr()?;
-    let app = axum::Router::new().route(
-        "/metrics",
-        axum::routing::get(move || {
-            let store = store.clone();
-            async move {
-                (
-                    [(
-                        axum::http::header::CONTENT_TYPE,
-                        "text/plain; version=0.0.4",
-                    )],
-                    render(&store),
-                )
-            }
-        }),
-    );
+    let app = axum::Router::new()
+        .route(
+            "/metrics",
+            axum::routing::get(move || {
+                let store = store.clone();
+                async move {
+                    (
+                        [(
+                            axum::http::header::CONTENT_TYPE,
+                            "text/plain; version=0.0.4",
+                        )],
+                        render(&store),
+                    )
+                }
+            }),
+        )
+        .route("/healthz", axum::routing::get(|| async { "ok\n" }))
+        .route(
+            "/readyz",
+            axum::routing::get(move || {
+                let ready = *serving.borrow();
+                async move {
+                    if ready {
+                        (axum::http::StatusCode::OK, "serving\n")
+                    } else {
+                        (axum::http::StatusCode::SERVICE_UNAVAILABLE, "not serving\n")
+                    }
+                }
+            }),
+        );
     tokio::spawn(async move {
         if let Err(e) = axum::serve(listener, app)
             .with_graceful_shutdown(shutdown)

@@ -69,6 +69,9 @@ pub async fn serve(config: Config) -> anyhow::Result<()> {
         .await
         .context("opening the store")?
         .with_context(|| format!("opening the store in {}", config.store.data_dir.display()))?;
+    let auth = crate::auth::Authenticator::start(&config.auth, &config.server.tls)
+        .context("loading the token file (auth.tokens_file)")?;
+    check_exposure(&config, auth.enabled())?;
     let service = PlaceRecognitionService::new(
         store.clone(),
         config.vpr.clone(),
@@ -79,6 +82,7 @@ pub async fn serve(config: Config) -> anyhow::Result<()> {
             config.query.concurrent_scans,
             std::time::Duration::from_millis(config.query.max_wait_ms),
         ),
+        auth.clone(),
     );
     let max = config.server.max_message_bytes;
     let api = PlaceRecognitionServer::new(service)
@@ -106,11 +110,18 @@ pub async fn serve(config: Config) -> anyhow::Result<()> {
 
     metrics::init();
     let (stop_tx, stop_rx) = tokio::sync::watch::channel(false);
+    // True from the moment the gRPC port is open until shutdown begins.
+    let (serving_tx, serving_rx) = tokio::sync::watch::channel(false);
     if config.metrics.enabled {
         let mut stop = stop_rx.clone();
-        let addr = metrics::serve(config.metrics.listen, store.clone(), async move {
-            let _ = stop.changed().await;
-        })
+        let addr = metrics::serve(
+            config.metrics.listen,
+            store.clone(),
+            serving_rx,
+            async move {
+                let _ = stop.changed().await;
+            },
+        )
         .await?;
         tracing::info!(%addr, "metrics on /metrics");
         println!("humem metrics on {addr}");
@@ -133,12 +144,14 @@ pub async fn serve(config: Config) -> anyhow::Result<()> {
     tracing::info!(
         %local,
         tls = tls.is_some(),
+        credentials = auth.enabled(),
         mutual_tls = tls.is_some() && config.server.tls.client_ca.is_some(),
         data_dir = %config.store.data_dir.display(),
         "humem serving"
     );
     // One plain line on stdout, for scripts and tests that asked for port 0.
     println!("humem listening on {local}");
+    let _ = serving_tx.send(true);
 
     let router = tonic::transport::Server::builder()
         // Outermost, so that it records the code the client receives.
@@ -153,6 +166,7 @@ pub async fn serve(config: Config) -> anyhow::Result<()> {
     let shutdown = async move {
         shutdown_signal().await;
         tracing::info!("shutdown requested: finishing in-flight requests");
+        let _ = serving_tx.send(false);
         let _ = stop_tx.send(true);
         health
             .set_not_serving::<PlaceRecognitionServer<PlaceRecognitionService>>()
@@ -188,6 +202,30 @@ pub async fn serve(config: Config) -> anyhow::Result<()> {
     }
     tracing::info!("humem stopped");
     Ok(())
+}
+
+/// Refuses to serve beyond this machine without TLS and credentials,
+/// unless `server.allow_insecure_network` says so.
+fn check_exposure(config: &Config, credentials: bool) -> anyhow::Result<()> {
+    let listen = config.server.listen;
+    let tls = config.server.tls.enabled();
+    if listen.ip().is_loopback() || (tls && credentials) {
+        return Ok(());
+    }
+    let missing = match (tls, credentials) {
+        (false, false) => "TLS and credentials",
+        (false, true) => "TLS",
+        _ => "credentials",
+    };
+    if config.server.allow_insecure_network {
+        tracing::warn!(%listen, missing, "serving a network address without TLS or credentials (server.allow_insecure_network)");
+        return Ok(());
+    }
+    anyhow::bail!(
+        "refusing to serve {listen} without {missing}: anyone who reaches it could write, read and wipe every robot's maps. \
+         Set server.tls.cert and server.tls.key, and auth.tokens_file or server.tls.client_ca; \
+         or listen on 127.0.0.1; or set server.allow_insecure_network = true behind a proxy that does both"
+    )
 }
 
 async fn shutdown_signal() {

@@ -30,8 +30,6 @@ use tokio_stream::Stream;
 use crate::config::{ClientAuth, TlsSettings};
 use crate::metrics;
 
-/// How often the files are checked for changes.
-const RELOAD_CHECK: Duration = Duration::from_secs(1);
 /// Longest a client may take to complete its handshake.
 const HANDSHAKE_TIMEOUT: Duration = Duration::from_secs(10);
 /// Handshaken connections waiting for the gRPC server to take them.
@@ -118,12 +116,14 @@ impl ReloadingTls {
     /// Builds the configuration once (an error here stops the start) and
     /// starts the task that rebuilds it when a file changes.
     pub fn start(settings: TlsSettings) -> Result<ReloadingTls, TlsError> {
+        let files: Vec<_> = settings.files().into_iter().map(Path::to_path_buf).collect();
+        let seen = crate::watch::Snapshot::of(&files);
         let config = build_config(&settings)?;
         let tls = ReloadingTls {
             current: Arc::new(RwLock::new(config)),
         };
         let watched = tls.clone();
-        tokio::spawn(async move { watched.watch(settings).await });
+        crate::watch::on_change(files, seen, move || watched.reload(&settings));
         Ok(tls)
     }
 
@@ -134,47 +134,27 @@ impl ReloadingTls {
             .clone()
     }
 
-    async fn watch(self, settings: TlsSettings) {
-        // The files' contents, compared whole: a few kilobytes a second,
-        // and it sees every kind of replacement (rewrite, rename, the
-        // symlink swap of a Kubernetes secret volume), which times and
-        // sizes do not.
-        let stamp = |settings: &TlsSettings| -> Vec<Option<Vec<u8>>> {
-            settings
-                .files()
-                .into_iter()
-                .map(|path| std::fs::read(path).ok())
-                .collect()
-        };
-        let mut seen = stamp(&settings);
-        let mut interval = tokio::time::interval(RELOAD_CHECK);
-        interval.set_missed_tick_behavior(tokio::time::MissedTickBehavior::Delay);
-        loop {
-            interval.tick().await;
-            // Only the last clone (this task's) left: the server is gone.
-            if Arc::strong_count(&self.current) == 1 {
-                return;
+    /// Rebuilds the configuration after its files changed; `false` once the
+    /// server is gone (only the watcher's clone is left).
+    fn reload(&self, settings: &TlsSettings) -> bool {
+        if Arc::strong_count(&self.current) == 1 {
+            return false;
+        }
+        match build_config(settings) {
+            Ok(config) => {
+                *self
+                    .current
+                    .write()
+                    .unwrap_or_else(|poisoned| poisoned.into_inner()) = config;
+                metrics::TLS_RELOADS.with_label_values(&["ok"]).inc();
+                tracing::info!("TLS certificate files changed: reloaded");
             }
-            let now = stamp(&settings);
-            if now == seen {
-                continue;
-            }
-            seen = now;
-            match build_config(&settings) {
-                Ok(config) => {
-                    *self
-                        .current
-                        .write()
-                        .unwrap_or_else(|poisoned| poisoned.into_inner()) = config;
-                    metrics::TLS_RELOADS.with_label_values(&["ok"]).inc();
-                    tracing::info!("TLS certificate files changed: reloaded");
-                }
-                Err(e) => {
-                    metrics::TLS_RELOADS.with_label_values(&["error"]).inc();
-                    tracing::warn!(error = %e, "TLS certificate files changed but cannot be loaded; keeping the previous ones");
-                }
+            Err(e) => {
+                metrics::TLS_RELOADS.with_label_values(&["error"]).inc();
+                tracing::warn!(error = %e, "TLS certificate files changed but cannot be loaded; keeping the previous ones");
             }
         }
+        true
     }
 }
 

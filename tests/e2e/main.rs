@@ -3,9 +3,11 @@
 //! tonic client, as a SLAM system would.
 
 mod harness;
+mod pki;
 mod scenes;
 
 mod admission;
+mod auth;
 mod cli;
 mod detector;
 mod durability;

@@ -4,72 +4,28 @@
 //! refuses clients without a certificate from its client CA; and a new
 //! certificate written over the old files is served without a restart.
 
-use std::path::{Path, PathBuf};
+use std::path::Path;
 use std::time::{Duration, Instant};
 
-use humem_server::client::ClientTls;
-use humem_server::proto;
-use rcgen::{
-    BasicConstraints, CertificateParams, CertifiedIssuer, DnType, IsCa, KeyPair, KeyUsagePurpose,
-};
-
 use crate::harness::Server;
+use crate::pki::Authority;
+use humem_server::client::ClientCredentials;
+use humem_server::proto;
 
-/// A certificate authority of the test.
-struct Authority {
-    issuer: CertifiedIssuer<'static, KeyPair>,
-}
-
-impl Authority {
-    fn new(name: &str) -> Authority {
-        let mut params = CertificateParams::new(Vec::<String>::new()).unwrap();
-        params.is_ca = IsCa::Ca(BasicConstraints::Unconstrained);
-        params.distinguished_name.push(DnType::CommonName, name);
-        params.key_usages = vec![KeyUsagePurpose::KeyCertSign, KeyUsagePurpose::CrlSign];
-        let issuer = CertifiedIssuer::self_signed(params, KeyPair::generate().unwrap()).unwrap();
-        Authority { issuer }
-    }
-
-    /// Writes the CA certificate as `<name>.crt` in `dir`.
-    fn write_ca(&self, dir: &Path, name: &str) -> PathBuf {
-        let path = dir.join(format!("{name}.crt"));
-        std::fs::write(&path, self.issuer.pem()).unwrap();
-        path
-    }
-
-    /// Issues a certificate for `names` and writes it and its key as
-    /// `<file>.crt` and `<file>.key` in `dir` (replacing them atomically).
-    fn issue(&self, dir: &Path, file: &str, names: &[&str]) -> (PathBuf, PathBuf) {
-        let key = KeyPair::generate().unwrap();
-        let names: Vec<String> = names.iter().map(|n| n.to_string()).collect();
-        let mut params = CertificateParams::new(names).unwrap();
-        params.distinguished_name.push(DnType::CommonName, file);
-        let cert = params.signed_by(&key, &self.issuer).unwrap();
-        let write = |extension: &str, text: String| {
-            let path = dir.join(format!("{file}.{extension}"));
-            let partial = dir.join(format!(".{file}.{extension}.new"));
-            std::fs::write(&partial, text).unwrap();
-            std::fs::rename(&partial, &path).unwrap();
-            path
-        };
-        (write("crt", cert.pem()), write("key", key.serialize_pem()))
-    }
-}
-
-fn trusting(ca: &Path) -> ClientTls {
-    ClientTls {
+pub fn trusting(ca: &Path) -> ClientCredentials {
+    ClientCredentials {
         tls_ca: Some(ca.to_path_buf()),
-        ..ClientTls::default()
+        ..ClientCredentials::default()
     }
 }
 
-fn https(server: &Server) -> String {
+pub fn https(server: &Server) -> String {
     server.url.replace("http://", "https://")
 }
 
 /// Stats over a fresh connection, with a deadline: Ok(keyframes) or the
 /// whole error chain as text.
-async fn stats(url: &str, tls: &ClientTls) -> Result<u64, String> {
+pub async fn stats(url: &str, tls: &ClientCredentials) -> Result<u64, String> {
     let call = async {
         let mut client = humem_server::client::connect(url, tls).await?;
         let reply = client.stats(proto::StatsRequest {}).await?;
@@ -81,7 +37,7 @@ async fn stats(url: &str, tls: &ClientTls) -> Result<u64, String> {
     }
 }
 
-fn tls_env(cert: &Path, key: &Path) -> Vec<String> {
+pub fn tls_env(cert: &Path, key: &Path) -> Vec<String> {
     vec![
         format!("HUMEM_SERVER__TLS__CERT={}", cert.display()),
         format!("HUMEM_SERVER__TLS__KEY={}", key.display()),
@@ -113,7 +69,7 @@ async fn tls_serves_clients_that_trust_its_ca_and_refuses_the_rest_cleanly() {
     assert!(err.contains("certificate"), "{err}");
 
     // A name the certificate does not hold.
-    let wrong_name = ClientTls {
+    let wrong_name = ClientCredentials {
         tls_server_name: Some("humem.example".into()),
         ..trusting(&ca_file)
     };
@@ -121,7 +77,9 @@ async fn tls_serves_clients_that_trust_its_ca_and_refuses_the_rest_cleanly() {
     assert!(err.contains("certificate"), "{err}");
 
     // Plaintext to the TLS port fails, promptly, with an error.
-    let err = stats(&server.url, &ClientTls::default()).await.unwrap_err();
+    let err = stats(&server.url, &ClientCredentials::default())
+        .await
+        .unwrap_err();
     assert_ne!(err, "timed out");
 
     // And the server goes on serving, with each failure counted.
@@ -152,7 +110,7 @@ async fn mutual_tls_serves_only_clients_with_a_certificate_from_its_client_ca() 
     ));
     let server = start(dir.path(), &env);
     let url = https(&server);
-    let with_identity = |cert: &Path, key: &Path| ClientTls {
+    let with_identity = |cert: &Path, key: &Path| ClientCredentials {
         tls_cert: Some(cert.to_path_buf()),
         tls_key: Some(key.to_path_buf()),
         ..trusting(&ca_file)

@@ -109,6 +109,8 @@ pub struct Eligibility {
     map_id: u64,
     min_frame_gap: u64,
     scope: CompiledScope,
+    /// Interned robots the caller may read; `None`: every robot.
+    readable: Option<Vec<u32>>,
 }
 
 impl Eligibility {
@@ -146,6 +148,10 @@ impl Eligibility {
             map_id: context.map_id,
             min_frame_gap: context.min_frame_gap,
             scope,
+            readable: context
+                .readable_robots
+                .as_ref()
+                .map(|robots| robots.iter().filter_map(|r| interner.robot(r)).collect()),
         }
     }
 
@@ -156,7 +162,12 @@ impl Eligibility {
         let gap = !own_session
             || (self.keyframe_id != Some(ids.keyframe_id)
                 && self.frame_id.abs_diff(ids.frame_id) >= self.min_frame_gap);
-        if !gap {
+        if !gap
+            || self
+                .readable
+                .as_ref()
+                .is_some_and(|robots| !robots.contains(&ids.robot))
+        {
             return false;
         }
         let same_map = own_session && ids.map_id == self.map_id;
@@ -215,6 +226,7 @@ mod tests {
             rows in prop::collection::vec((name(), name(), 0u64..6, 0u64..3, 0u64..400), 1..40),
             query in (name(), name(), prop::option::of(0u64..6), 0u64..400, 0u64..3, 0u64..200),
             scope in scope(),
+            readable in prop::option::of(prop::collection::vec(name(), 0..3)),
         ) {
             let mut interner = Interner::default();
             let keys: Vec<(KeyframeKey, u64, u64, RowIds)> = rows
@@ -236,6 +248,7 @@ mod tests {
                 map_id,
                 min_frame_gap,
                 scope,
+                readable_robots: readable,
             };
             let rule = Eligibility::compile(&context, &interner);
             for (key, frame_id, map_id, ids) in &keys {

@@ -23,7 +23,7 @@ use std::collections::BTreeSet;
 use std::time::{Duration, Instant};
 
 use anyhow::{bail, Context};
-use tonic::transport::Channel;
+use humem_server::client::Connection;
 
 use super::dataset::Dataset;
 use super::degrade::Degradation;
@@ -35,7 +35,7 @@ use humem_server::proto::place_recognition_client::PlaceRecognitionClient;
 
 /// The run's place on the server.
 pub struct Remote {
-    client: PlaceRecognitionClient<Channel>,
+    client: PlaceRecognitionClient<Connection>,
     reference_robot: String,
     query_robot: String,
     session: String,
@@ -88,7 +88,7 @@ impl Remote {
     /// Connects and names the run's robots and session.
     pub async fn connect(
         url: &str,
-        tls: &humem_server::client::ClientTls,
+        tls: &humem_server::client::ClientCredentials,
         dataset: &Dataset,
         top_n: usize,
     ) -> anyhow::Result<Remote> {

@@ -84,7 +84,7 @@ pub struct EvalArgs {
     pub server: Option<String>,
     /// TLS to that server (`--tls-ca`, `--tls-cert`, `--tls-key`).
     #[command(flatten)]
-    pub tls: humem_server::client::ClientTls,
+    pub tls: humem_server::client::ClientCredentials,
     /// Where objects come from: the perception models, or the data set's
     /// instance masks (`annotations`, in-process only) to measure the object
     /// and text layers without a detector's errors.
@@ -447,6 +447,7 @@ impl LocalDatabase {
                         robot_ids: vec![REFERENCE_ROBOT.into()],
                         maps: Vec::new(),
                     },
+                    readable_robots: None,
                     min_frame_gap: 0,
                     top_n: config.vpr.top_k,
                     threshold: 0.0,

@@ -193,6 +193,7 @@ fn spec(keyframe_id: u64, top_n: usize) -> QuerySpec {
         observation: None,
         predecessor_ids: Vec::new(),
         scope: Scope::AllMaps,
+        readable_robots: None,
         min_frame_gap: 30,
         top_n,
         threshold: 0.0,

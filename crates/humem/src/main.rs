@@ -68,6 +68,11 @@ async fn main() -> anyhow::Result<()> {
             init_logging(LogFormat::Plain, "warn,ort::logging=error");
             humem_eval::text_recall::run(config, args).await
         }
+        Command::Token(command) => {
+            init_logging(LogFormat::Plain, "warn");
+            let config = Config::load(cli.config.as_deref(), figment::Figment::new())?;
+            crate::cli::token::run(command, config.auth.tokens_file.as_deref())
+        }
         Command::Export { data_dir } => {
             init_logging(LogFormat::Plain, "warn");
             let count = crate::cli::export::export(&data_dir, &mut std::io::stdout().lock())?;

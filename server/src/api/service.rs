@@ -11,6 +11,7 @@ use tonic::{Request, Response, Status};
 
 use super::convert;
 use super::validate::{self, InvalidField, Limits, Observation};
+use crate::auth::Authenticator;
 use crate::pipeline::admission::QueryAdmission;
 use crate::pipeline::latest_wins::LatestWins;
 use crate::pipeline::{Pipeline, QueryAnswer};
@@ -25,6 +26,7 @@ use humem_store::{MapKey, Mutation, Store};
 pub struct PlaceRecognitionService {
     pipeline: Pipeline,
     limits: Limits,
+    auth: Authenticator,
 }
 
 impl PlaceRecognitionService {
@@ -36,16 +38,20 @@ impl PlaceRecognitionService {
         perception: Option<Perception>,
         scheduler: Arc<LatestWins>,
         admission: Arc<QueryAdmission>,
+        auth: Authenticator,
     ) -> Self {
         PlaceRecognitionService {
             pipeline: Pipeline::new(store, params, perception, scheduler, admission),
             limits,
+            auth,
         }
     }
 }
 
-/// The handlers, one per RPC: validate, call the pipeline, convert. Their
-/// metrics are recorded by one layer around the server (`rpc_metrics`).
+/// The handlers, one per RPC: authenticate, validate, check that the caller
+/// may act for the robot the request names, call the pipeline, convert.
+/// Their metrics are recorded by one layer around the server
+/// (`rpc_metrics`).
 #[tonic::async_trait]
 impl PlaceRecognition for PlaceRecognitionService {
     #[tracing::instrument(skip_all, fields(robot, session, keyframe))]
@@ -53,7 +59,14 @@ impl PlaceRecognition for PlaceRecognitionService {
         &self,
         request: Request<proto::InsertRequest>,
     ) -> Result<Response<proto::InsertResponse>, Status> {
+        let caller = self.auth.caller("Insert", &request)?;
         let pending = validate::keyframe("keyframe", request.into_inner().keyframe, &self.limits)?;
+        self.auth.check_acts_for(
+            "Insert",
+            &caller,
+            "keyframe.robot_id",
+            &pending.key.robot_id,
+        )?;
         let span = tracing::Span::current();
         span.record("robot", pending.key.robot_id.as_str());
         span.record("session", pending.key.session_id.as_str());
@@ -74,7 +87,16 @@ impl PlaceRecognition for PlaceRecognitionService {
         &self,
         request: Request<proto::InsertBatchRequest>,
     ) -> Result<Response<proto::InsertBatchResponse>, Status> {
+        let caller = self.auth.caller("InsertBatch", &request)?;
         let pending = validate::batch(request.into_inner().keyframes, &self.limits)?;
+        for (i, keyframe) in pending.iter().enumerate() {
+            self.auth.check_acts_for(
+                "InsertBatch",
+                &caller,
+                &format!("keyframes[{i}].robot_id"),
+                &keyframe.key.robot_id,
+            )?;
+        }
         tracing::Span::current().record("keyframes", pending.len());
         let outcome = self.pipeline.insert_batch(pending).await?;
         Ok(Response::new(proto::InsertBatchResponse {
@@ -93,7 +115,12 @@ impl PlaceRecognition for PlaceRecognitionService {
             .get("grpc-timeout")
             .and_then(|v| v.to_str().ok())
             .and_then(crate::pipeline::admission::grpc_timeout);
-        let spec = validate::query(request.into_inner(), &self.limits)?;
+        let caller = self.auth.caller("Query", &request)?;
+        let mut spec = validate::query(request.into_inner(), &self.limits)?;
+        self.auth
+            .check_acts_for("Query", &caller, "robot_id", &spec.session.robot_id)?;
+        // Every scope is narrowed to the robots the caller may read.
+        spec.readable_robots = caller.readable_robots(self.auth.groups());
         let span = tracing::Span::current();
         span.record("robot", spec.session.robot_id.as_str());
         span.record("session", spec.session.session_id.as_str());
@@ -120,7 +147,10 @@ impl PlaceRecognition for PlaceRecognitionService {
         &self,
         request: Request<proto::EraseRequest>,
     ) -> Result<Response<proto::EraseResponse>, Status> {
+        let caller = self.auth.caller("Erase", &request)?;
         let (session, keyframe_ids) = validate::erase(request.get_ref())?;
+        self.auth
+            .check_acts_for("Erase", &caller, "robot_id", &session.robot_id)?;
         let outcome = self
             .pipeline
             .apply(Mutation::Erase {
@@ -138,8 +168,11 @@ impl PlaceRecognition for PlaceRecognitionService {
         &self,
         request: Request<proto::ResetMapRequest>,
     ) -> Result<Response<proto::ResetMapResponse>, Status> {
+        let caller = self.auth.caller("ResetMap", &request)?;
         let r = request.get_ref();
         let session = validate::session("", &r.robot_id, &r.session_id)?;
+        self.auth
+            .check_acts_for("ResetMap", &caller, "robot_id", &session.robot_id)?;
         let map_id = r.map_id.ok_or_else(|| InvalidField {
             field: "map_id".into(),
             reason: "required".into(),
@@ -158,8 +191,11 @@ impl PlaceRecognition for PlaceRecognitionService {
         &self,
         request: Request<proto::ResetSessionRequest>,
     ) -> Result<Response<proto::ResetSessionResponse>, Status> {
+        let caller = self.auth.caller("ResetSession", &request)?;
         let r = request.get_ref();
         let session = validate::session("", &r.robot_id, &r.session_id)?;
+        self.auth
+            .check_acts_for("ResetSession", &caller, "robot_id", &session.robot_id)?;
         let outcome = self.pipeline.apply(Mutation::ResetSession(session)).await?;
         Ok(Response::new(proto::ResetSessionResponse {
             erased: outcome.affected,
@@ -171,7 +207,10 @@ impl PlaceRecognition for PlaceRecognitionService {
         &self,
         request: Request<proto::UpdatePosesRequest>,
     ) -> Result<Response<proto::UpdatePosesResponse>, Status> {
+        let caller = self.auth.caller("UpdatePoses", &request)?;
         let (session, updates) = validate::pose_updates(request.get_ref())?;
+        self.auth
+            .check_acts_for("UpdatePoses", &caller, "robot_id", &session.robot_id)?;
         let outcome = self
             .pipeline
             .apply(Mutation::UpdatePoses { session, updates })
@@ -184,13 +223,21 @@ impl PlaceRecognition for PlaceRecognitionService {
 
     async fn stats(
         &self,
-        _request: Request<proto::StatsRequest>,
+        request: Request<proto::StatsRequest>,
     ) -> Result<Response<proto::StatsResponse>, Status> {
+        let caller = self.auth.caller("Stats", &request)?;
+        // Only the maps the caller may read are listed.
+        let readable = caller.readable_robots(self.auth.groups());
         let (keyframes, descriptor_dim, maps) = {
             let index = self.pipeline.store().index();
             let maps = index
                 .map_counts()
                 .into_iter()
+                .filter(|(map, _)| {
+                    readable
+                        .as_ref()
+                        .is_none_or(|r| r.contains(&map.session.robot_id))
+                })
                 .map(|(map, count)| proto::MapStats {
                     robot_id: map.session.robot_id,
                     session_id: map.session.session_id,

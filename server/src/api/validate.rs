@@ -586,6 +586,7 @@ pub fn query(mut r: proto::QueryRequest, limits: &Limits) -> Result<QuerySpec> {
         observation,
         predecessor_ids: r.predecessor_keyframe_ids.clone(),
         scope,
+        readable_robots: None,
         min_frame_gap: r.min_frame_gap.unwrap_or(limits.min_frame_gap),
         top_n,
         threshold,

@@ -248,6 +248,7 @@ fn query_context(
         map_id,
         min_frame_gap: spec.min_frame_gap,
         scope: spec.scope.clone(),
+        readable_robots: spec.readable_robots.clone(),
     })
 }
 

@@ -55,6 +55,9 @@ pub struct QuerySpec {
     pub predecessor_ids: Vec<u64>,
     /// Which maps to search.
     pub scope: Scope,
+    /// The robots whose maps the caller may read (access rules); `None`:
+    /// every robot.
+    pub readable_robots: Option<Vec<String>>,
     /// Least source-frame gap to keyframes of the querying session.
     pub min_frame_gap: u64,
     /// Most candidates returned, at least 1.

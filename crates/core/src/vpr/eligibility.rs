@@ -7,6 +7,9 @@
 //! the caller asks about: its own map for loop closure, other maps for map
 //! merging, or an explicit list). A map is identified by the triple
 //! (robot, session, map id) because atlas map ids restart per session.
+//!
+//! On top of both, the caller's read access (`readable_robots`, from the
+//! server's access rules) narrows any scope to the robots it may read.
 
 use crate::keyframe::{KeyframeKey, SessionKey};
 
@@ -54,6 +57,8 @@ pub struct QueryContext {
     pub min_frame_gap: u64,
     /// Which maps the candidates may come from.
     pub scope: Scope,
+    /// The robots whose keyframes the caller may read; `None`: every robot.
+    pub readable_robots: Option<Vec<String>>,
 }
 
 /// Candidate metadata needed for the rule.
@@ -67,9 +72,16 @@ pub struct CandidateMeta<'a> {
     pub map_id: u64,
 }
 
-/// Gap rule and scope rule together.
+/// Gap rule, scope rule and read access together.
 pub fn is_eligible(query: &QueryContext, cand: &CandidateMeta) -> bool {
-    passes_gap(query, cand) && in_scope(query, cand)
+    passes_gap(query, cand) && in_scope(query, cand) && readable(query, cand)
+}
+
+fn readable(query: &QueryContext, cand: &CandidateMeta) -> bool {
+    query
+        .readable_robots
+        .as_ref()
+        .is_none_or(|robots| robots.contains(&cand.key.robot_id))
 }
 
 /// Same robot and session: `|f_t − f_i| ≥ min_frame_gap` and not the query
@@ -129,6 +141,7 @@ mod tests {
             map_id: 0,
             min_frame_gap: 100,
             scope,
+            readable_robots: None,
         }
     }
 
@@ -228,5 +241,24 @@ mod tests {
         assert!(!eligible(&q, &key("r4", "s1", 1), 0, 4));
         // Listed, but the gap rule still applies within the query's session.
         assert!(!eligible(&q, &key("r1", "s1", 1), 950, 2));
+    }
+
+    #[test]
+    fn read_access_narrows_every_scope() {
+        for scope in [
+            Scope::AllMaps,
+            Scope::OtherMaps,
+            Scope::Listed {
+                robot_ids: vec!["r2".into(), "r3".into()],
+                maps: vec![],
+            },
+        ] {
+            let mut q = query(scope);
+            q.readable_robots = Some(vec!["r1".into(), "r2".into()]);
+            assert!(eligible(&q, &key("r2", "s", 1), 0, 9));
+            assert!(!eligible(&q, &key("r3", "s", 1), 0, 9), "{:?}", q.scope);
+            q.readable_robots = Some(vec![]);
+            assert!(!eligible(&q, &key("r2", "s", 1), 0, 9));
+        }
     }
 }

@@ -55,7 +55,9 @@ fn status_error(call: &str, status: tonic::Status) -> anyhow::Error {
 pub async fn run_client(command: Command) -> anyhow::Result<()> {
     match command {
         Command::Load(args) => super::load::run(args).await?,
-        Command::Serve(_) | Command::Export { .. } => bail!("not a client command"),
+        Command::Serve(_) | Command::Export { .. } | Command::Token(_) => {
+            bail!("not a client command")
+        }
         #[cfg(feature = "eval")]
         Command::Bench(_) | Command::Eval(_) | Command::TextRecall(_) => {
             bail!("not a client command")

@@ -16,7 +16,7 @@ use std::time::{Duration, Instant};
 
 use anyhow::Context;
 use hdrhistogram::Histogram;
-use tonic::transport::Channel;
+use humem_server::client::Connection;
 
 use humem_server::proto;
 use humem_server::proto::place_recognition_client::PlaceRecognitionClient;
@@ -32,7 +32,7 @@ pub struct LoadArgs {
     )]
     pub server: String,
     #[command(flatten)]
-    pub tls: humem_server::client::ClientTls,
+    pub tls: humem_server::client::ClientCredentials,
     /// Simulated robots.
     #[arg(long, default_value_t = 8)]
     pub robots: usize,
@@ -138,7 +138,7 @@ fn load_images(dir: &std::path::Path) -> anyhow::Result<Vec<Vec<u8>>> {
 }
 
 async fn robot(
-    client: PlaceRecognitionClient<Channel>,
+    client: PlaceRecognitionClient<Connection>,
     robot: usize,
     args: Arc<LoadArgs>,
     content: Arc<Content>,

@@ -7,6 +7,7 @@
 pub(crate) mod client;
 pub mod export;
 pub mod load;
+pub mod token;
 
 use std::net::SocketAddr;
 use std::path::PathBuf;
@@ -110,6 +111,9 @@ pub enum Command {
     /// it, and OCR time per image.
     #[cfg(feature = "eval")]
     TextRecall(humem_eval::text_recall::TextRecallArgs),
+    /// Manage the bearer tokens robots authenticate with.
+    #[command(subcommand)]
+    Token(token::TokenCommand),
     /// Drive a running server from simulated robots and print the achieved
     /// rate, latency percentiles, superseded queries and errors.
     Load(load::LoadArgs),
@@ -178,7 +182,7 @@ pub struct ServerArg {
     )]
     pub server: String,
     #[command(flatten)]
-    pub tls: humem_server::client::ClientTls,
+    pub tls: humem_server::client::ClientCredentials,
 }
 
 /// Robot and session of a maintenance command.
