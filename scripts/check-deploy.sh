@@ -8,7 +8,10 @@
 #   5. systemd-analyze verify and security on the unit, sysusers and tmpfiles
 #      into a scratch root (skipped, with a message, without systemd-analyze);
 #   6. every example configuration (sidecar, Kubernetes, container) is accepted
-#      by the real binary, which starts with it and stops cleanly on SIGTERM;
+#      by the real binary, which starts with it on its own address, answers
+#      /readyz, serves TLS with a token where the configuration asks for them
+#      (development certificates from scripts/make-dev-certs.sh) and refuses
+#      a call without one, and stops cleanly on SIGTERM;
 #   7. a live run: a real `humem serve` with the real models, driven by
 #      `humem load` (synthetic and image keyframes, image queries, an
 #      overload burst, a client with the wrong descriptor length), scraped
@@ -151,15 +154,43 @@ fi
 
 # --- 6. the example configurations, read by the real binary -------------------------------------
 step "example configurations, started by the real binary"
+scripts/make-dev-certs.sh "$TMP/certs" >/dev/null
 for config in deploy/systemd/humem.toml deploy/kubernetes/humem.toml docker/humem.toml; do
     name=config-$(echo "$config" | tr / -)
-    # Only the places change: ports, the store, the models (here in ./models).
-    SERVER_ENV=(HUMEM_SERVER__LISTEN=127.0.0.1:0 HUMEM_METRICS__LISTEN=127.0.0.1:0
+    # Only the places change: ports (on the configuration's own address, so
+    # that the refusal to serve a network address insecurely applies), the
+    # store, the models (here in ./models), and for a configuration with
+    # TLS and tokens, the certificate (scripts/make-dev-certs.sh) and the
+    # token file.
+    read -r host tls tokens < <($PY -c 'import sys, tomllib
+c = tomllib.load(open(sys.argv[1], "rb"))
+host = c.get("server", {}).get("listen", "127.0.0.1:50051").rsplit(":", 1)[0]
+print(host, int("tls" in c.get("server", {})), int("tokens_file" in c.get("auth", {})))' "$config")
+    SERVER_ENV=(HUMEM_SERVER__LISTEN="$host:0" HUMEM_METRICS__LISTEN=127.0.0.1:0
                 HUMEM_STORE__DATA_DIR="$TMP/$name-data" HUMEM_PERCEPTION__MODELS_DIR="$REPO/models")
+    [[ $tls == 1 ]] && SERVER_ENV+=(HUMEM_SERVER__TLS__CERT="$TMP/certs/tls.crt" HUMEM_SERVER__TLS__KEY="$TMP/certs/tls.key")
+    [[ $tokens == 1 ]] && SERVER_ENV+=(HUMEM_AUTH__TOKENS_FILE="$TMP/$name-tokens.json")
     start_humem "$name" --config "$config" || die "humem serve refused $config (log above)"
     [[ -n $SERVER_METRICS ]] || die "$config: no metrics endpoint"
+    "$BIN" probe --url "http://$SERVER_METRICS/readyz" || die "$config: /readyz did not answer 200"
+    secured=""
+    if [[ $tls == 1 && $tokens == 1 ]]; then
+        # The secure setup as shipped: TLS with the CA, a token from `humem token`.
+        url="https://127.0.0.1:${SERVER_GRPC##*:}"
+        token=$("$BIN" token add --file "$TMP/$name-tokens.json" --robot check-deploy 2>/dev/null)
+        ok=""
+        for _ in $(seq 20); do  # the server reads the token file again within a second
+            if "$BIN" stats --server "$url" --tls-ca "$TMP/certs/ca.crt" --token "$token" >/dev/null 2>&1; then ok=1; break; fi
+            sleep 0.1
+        done
+        [[ -n $ok ]] || die "$config: Stats over TLS with a fresh token failed"
+        if "$BIN" stats --server "$url" --tls-ca "$TMP/certs/ca.crt" >/dev/null 2>&1; then
+            die "$config: Stats without a token was answered"
+        fi
+        secured="; TLS with a token answered, no token refused"
+    fi
     stop_humem || die "$config: humem did not stop cleanly on SIGTERM"
-    echo "$config: accepted (models loaded, gRPC and metrics up, clean SIGTERM)$(grep -q 'running on the CPU' "$TMP/$name.err" && echo '; GPU provider fell back to the CPU in this build')"
+    echo "$config: accepted on $host (models loaded, gRPC and metrics up, /readyz 200$secured, clean SIGTERM)$(grep -q 'running on the CPU' "$TMP/$name.err" && echo '; GPU provider fell back to the CPU in this build')"
 done
 sed 's/^data_dir =/data_dri =/' deploy/systemd/humem.toml >"$TMP/typo.toml"
 SERVER_ENV=(HUMEM_PERCEPTION__ENABLED=false)

@@ -1,8 +1,9 @@
 #!/usr/bin/env bash
 # Tests the C++ client library (client-cpp/): configures and builds it
 # (Release, -j2), runs its tests with ctest against the real server binary,
-# runs the server tests again over TLS (certificates made here with
-# openssl: a CA, a server certificate for localhost, another CA), then
+# runs the server tests again over TLS with a bearer token (certificates
+# from scripts/make-dev-certs.sh: a CA, a server certificate for localhost,
+# another CA; the token from `humem token add`), then
 # installs it to a temporary prefix and builds and runs a tiny C++11
 # consumer project with find_package(humem_client), proving the CMake
 # package and the C++11-compatible headers.
@@ -30,20 +31,14 @@ cmake --build client-cpp/build -j"$jobs"
 echo "== client-cpp: tests (server: $bin)"
 ctest --test-dir client-cpp/build --output-on-failure -j"$jobs"
 
-echo "== client-cpp: the server tests again, over TLS"
+echo "== client-cpp: the server tests again, over TLS with a token"
 tls=$(mktemp -d)
 trap 'rm -rf "$tls"' EXIT
-make_ca() {  # FILE NAME
-    openssl req -x509 -newkey ec -pkeyopt ec_paramgen_curve:P-256 -nodes -days 2 \
-        -subj "/CN=$2" -keyout "$tls/$1.key" -out "$tls/$1.crt" 2>/dev/null
-}
-make_ca ca "HuMem test CA"
-make_ca other-ca "Another CA"
-openssl req -newkey ec -pkeyopt ec_paramgen_curve:P-256 -nodes -subj "/CN=localhost" \
-    -keyout "$tls/server.key" -out "$tls/server.csr" 2>/dev/null
-printf 'subjectAltName=DNS:localhost,IP:127.0.0.1\nbasicConstraints=CA:FALSE\nextendedKeyUsage=serverAuth\n' >"$tls/server.ext"
-openssl x509 -req -in "$tls/server.csr" -CA "$tls/ca.crt" -CAkey "$tls/ca.key" -CAcreateserial \
-    -days 2 -extfile "$tls/server.ext" -out "$tls/server.crt" 2>/dev/null
+scripts/make-dev-certs.sh "$tls" localhost 127.0.0.1 >/dev/null
+scripts/make-dev-certs.sh "$tls/other" localhost >/dev/null
+cp "$tls/other/ca.crt" "$tls/other-ca.crt"
+# An admin token: the suite's clients act for several robot ids.
+"$bin" token add --file "$tls/tokens.json" --robot client-tests --role admin >"$tls/token" 2>/dev/null
 HUMEM_TEST_TLS_DIR="$tls" client-cpp/build/tests/humem_client_server_tests
 
 echo "== client-cpp: install and build a C++11 consumer with find_package(humem_client)"

@@ -42,6 +42,9 @@ Status MakeCredentials(const ClientOptions& options, std::shared_ptr<grpc::Chann
                            !options.tls_key_file.empty() || !options.tls_server_name.empty();
   if (!UsesTls(options.target)) {
     if (tls_options) return invalid("tls_*: set, but target " + options.target + " is not an https:// URL");
+    if (!options.auth_token.empty()) {
+      return invalid("auth_token: only sent over TLS, and target " + options.target + " is not an https:// URL");
+    }
     *credentials = grpc::InsecureChannelCredentials();
     return Status::Ok();
   }
@@ -61,6 +64,10 @@ Status MakeCredentials(const ClientOptions& options, std::shared_ptr<grpc::Chann
     }
   }
   *credentials = grpc::SslCredentials(ssl);
+  if (!options.auth_token.empty()) {
+    // gRPC's access-token credentials send "authorization: Bearer <token>".
+    *credentials = grpc::CompositeChannelCredentials(*credentials, grpc::AccessTokenCredentials(options.auth_token));
+  }
   return Status::Ok();
 }
 

@@ -164,6 +164,14 @@ TEST_F(ClientTest, BadInputIsRefusedWithTheFieldNamedAndDoesNotStallTheQueue) {
   tls.tls_cert_file = "client.crt";
   EXPECT_EQ(humem::VprClient::Create(tls, &status), nullptr);
   EXPECT_EQ(status.message, "ClientOptions.tls_cert_file/tls_key_file: give both or neither");
+  humem::ClientOptions plain_token = no_robot;
+  plain_token.robot_id = "robot";
+  plain_token.target = server_.address();
+  plain_token.tls_ca_file.clear();
+  plain_token.tls_server_name.clear();
+  plain_token.auth_token = "hm1.x";
+  EXPECT_EQ(humem::VprClient::Create(plain_token, &status), nullptr);
+  EXPECT_NE(status.message.find("auth_token: only sent over TLS"), std::string::npos) << status.message;
 }
 
 // Over TLS (HUMEM_TEST_TLS_DIR), a client that speaks plaintext or trusts
@@ -187,6 +195,13 @@ TEST_F(ClientTest, OverTlsOnlyAClientThatTrustsTheServerIsAnswered) {
   humem::ClientOptions plaintext;
   plaintext.target = server_.address();
   EXPECT_EQ(stats(plaintext).code, StatusCode::kUnavailable);
+
+  humem::ClientOptions no_token = trusted;
+  no_token.auth_token.clear();
+  EXPECT_EQ(stats(no_token).code, StatusCode::kUnauthenticated);
+  humem::ClientOptions wrong_token = trusted;
+  wrong_token.auth_token = "hm1.00000000." + std::string(64, '0');
+  EXPECT_EQ(stats(wrong_token).code, StatusCode::kUnauthenticated);
 
   humem::ClientOptions other_ca = trusted;
   other_ca.tls_ca_file = tls + "/other-ca.crt";

@@ -8,6 +8,7 @@
 #include <cstring>
 #include <fcntl.h>
 #include <filesystem>
+#include <fstream>
 #include <poll.h>
 #include <spawn.h>
 #include <sys/wait.h>
@@ -66,6 +67,9 @@ void HumemServer::Connect(humem::ClientOptions* options) const {
   options->tls_ca_file = tls + "/ca.crt";
   // The certificate names "localhost"; the target is an IP address.
   options->tls_server_name = "localhost";
+  // The token `humem token add` printed into the directory.
+  std::ifstream token(tls + "/token");
+  std::getline(token, options->auth_token);
 }
 
 bool HumemServer::Start() {
@@ -114,8 +118,9 @@ bool HumemServer::StartOnce(bool* retry) {
   env.push_back("HUMEM_VPR__CALIBRATION=raw");
   const std::string tls = TlsDir();
   if (!tls.empty()) {
-    env.push_back("HUMEM_SERVER__TLS__CERT=" + tls + "/server.crt");
-    env.push_back("HUMEM_SERVER__TLS__KEY=" + tls + "/server.key");
+    env.push_back("HUMEM_SERVER__TLS__CERT=" + tls + "/tls.crt");
+    env.push_back("HUMEM_SERVER__TLS__KEY=" + tls + "/tls.key");
+    env.push_back("HUMEM_AUTH__TOKENS_FILE=" + tls + "/tokens.json");
   }
   for (const std::string& e : env_) env.push_back(e);
   std::vector<char*> envp;

@@ -4,10 +4,11 @@
 // read from the "humem listening on ADDR" line. Also stops, kills, freezes
 // (SIGSTOP) and restarts it on the same port and data directory.
 //
-// With HUMEM_TEST_TLS_DIR set (a directory holding ca.crt, server.crt and
-// server.key for "localhost", as scripts/test-client-cpp.sh makes them),
-// the server serves TLS and Connect() points clients at it over https://,
-// so the whole suite runs over TLS.
+// With HUMEM_TEST_TLS_DIR set (a directory holding ca.crt, tls.crt and
+// tls.key for "localhost", a token file tokens.json and the token in
+// `token`, as scripts/test-client-cpp.sh makes them), the server serves TLS
+// and requires tokens, and Connect() points clients at it over https://
+// with the token, so the whole suite runs over TLS with a token.
 #ifndef HUMEM_TESTS_HUMEM_SERVER_H_
 #define HUMEM_TESTS_HUMEM_SERVER_H_
 

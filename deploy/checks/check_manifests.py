@@ -5,8 +5,10 @@ agree with each other and with the service's configuration:
 - Kubernetes (deploy/kubernetes): every document has apiVersion/kind/name;
   the kustomizations name files that exist; the StatefulSet has one replica, a
   headless governing Service, a volume claim mounted at the configuration's
-  store.data_dir, the configuration mounted where `--config` points, gRPC
-  probes on the gRPC port, resource requests, a non-root security context;
+  store.data_dir, the configuration mounted where `--config` points,
+  HTTP probes on the metrics port (the gRPC port speaks TLS), TLS from a
+  mounted Secret and tokens on the volume, resource requests, a non-root
+  security context;
   humem.toml binds 0.0.0.0 on the container ports; the Service and the
   ServiceMonitor select what they should; the GPU overlay asks for a GPU and
   the CUDA provider; the PrometheusRule generator reproduces the rules file.
@@ -80,9 +82,12 @@ def check_kubernetes(repo: str, r: Report) -> None:
     container = pod["spec"]["containers"][0]
     ports = {p["name"]: p["containerPort"] for p in container.get("ports", [])}
     r.check({"grpc", "metrics"} <= ports.keys(), f"container ports grpc and metrics: {ports}")
-    for probe in ("startupProbe", "livenessProbe", "readinessProbe"):
-        p = container.get(probe, {})
-        r.check("grpc" in p and p["grpc"].get("port") == ports.get("grpc"), f"{probe}: gRPC health probe on the gRPC port")
+    # The gRPC port speaks TLS, which Kubernetes' gRPC probes cannot: the
+    # probes are the plain-HTTP endpoints of the metrics listener.
+    for probe, path in (("startupProbe", "/healthz"), ("livenessProbe", "/healthz"), ("readinessProbe", "/readyz")):
+        p = container.get(probe, {}).get("httpGet", {})
+        r.check(p.get("path") == path and p.get("port") in ("metrics", ports.get("metrics")),
+                f"{probe}: HTTP GET {path} on the metrics port")
     requests = container.get("resources", {}).get("requests", {})
     r.check({"cpu", "memory"} <= requests.keys(), f"resource requests {requests}")
     security = {**pod["spec"].get("securityContext", {}), **container.get("securityContext", {})}
@@ -102,6 +107,16 @@ def check_kubernetes(repo: str, r: Report) -> None:
     data_dir = config.get("store", {}).get("data_dir")
     r.check(any(mounts.get(c) == data_dir for c in claims),
             f"a volumeClaimTemplate is mounted at store.data_dir {data_dir}")
+    # The secure setup: TLS from a mounted Secret, tokens on the volume.
+    tls = config.get("server", {}).get("tls", {})
+    secret_mounts = {mounts.get(n) for n, v in volumes.items() if "secret" in v}
+    for key in ("cert", "key"):
+        path = tls.get(key)
+        r.check(path is not None and os.path.dirname(path) in secret_mounts,
+                f"humem.toml server.tls.{key} {path} is in a mounted Secret")
+    r.check(not any(d.get("kind") == "Secret" for d in docs), "no Secret is shipped (certificates are never baked in)")
+    tokens = config.get("auth", {}).get("tokens_file", "")
+    r.check(bool(tokens) and tokens.startswith(f"{data_dir}/"), f"auth.tokens_file {tokens} is on the persistent volume")
     for key, port_name in (("server", "grpc"), ("metrics", "metrics")):
         host, port = host_port(config.get(key, {}).get("listen", "127.0.0.1:0"))
         r.check(ipaddress.ip_address(host).is_unspecified and port == ports.get(port_name),

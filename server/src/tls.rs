@@ -116,7 +116,11 @@ impl ReloadingTls {
     /// Builds the configuration once (an error here stops the start) and
     /// starts the task that rebuilds it when a file changes.
     pub fn start(settings: TlsSettings) -> Result<ReloadingTls, TlsError> {
-        let files: Vec<_> = settings.files().into_iter().map(Path::to_path_buf).collect();
+        let files: Vec<_> = settings
+            .files()
+            .into_iter()
+            .map(Path::to_path_buf)
+            .collect();
         let seen = crate::watch::Snapshot::of(&files);
         let config = build_config(&settings)?;
         let tls = ReloadingTls {

@@ -91,6 +91,9 @@ struct ClientOptions {
   std::string tls_cert_file;
   std::string tls_key_file;
   std::string tls_server_name;
+  // Bearer token from `humem token add`, sent with every call as
+  // "authorization: Bearer <token>"; only over TLS (an "https://" target).
+  std::string auth_token;
   // Robot and session that every request is made for. robot_id is required.
   std::string robot_id;
   std::string session_id;

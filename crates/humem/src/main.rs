@@ -68,6 +68,7 @@ async fn main() -> anyhow::Result<()> {
             init_logging(LogFormat::Plain, "warn,ort::logging=error");
             humem_eval::text_recall::run(config, args).await
         }
+        Command::Probe { url } => crate::cli::probe::run(&url).await,
         Command::Token(command) => {
             init_logging(LogFormat::Plain, "warn");
             let config = Config::load(cli.config.as_deref(), figment::Figment::new())?;

@@ -55,7 +55,7 @@ fn status_error(call: &str, status: tonic::Status) -> anyhow::Error {
 pub async fn run_client(command: Command) -> anyhow::Result<()> {
     match command {
         Command::Load(args) => super::load::run(args).await?,
-        Command::Serve(_) | Command::Export { .. } | Command::Token(_) => {
+        Command::Serve(_) | Command::Export { .. } | Command::Token(_) | Command::Probe { .. } => {
             bail!("not a client command")
         }
         #[cfg(feature = "eval")]

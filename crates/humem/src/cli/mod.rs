@@ -7,6 +7,7 @@
 pub(crate) mod client;
 pub mod export;
 pub mod load;
+pub mod probe;
 pub mod token;
 
 use std::net::SocketAddr;
@@ -111,6 +112,14 @@ pub enum Command {
     /// it, and OCR time per image.
     #[cfg(feature = "eval")]
     TextRecall(humem_eval::text_recall::TextRecallArgs),
+    /// Check a running server's plain-HTTP probe endpoint (exit 0 when it
+    /// answers 200): for container health checks.
+    Probe {
+        /// The endpoint: `/readyz` (serving) or `/healthz` (alive) on the
+        /// metrics listener.
+        #[arg(long, default_value = "http://127.0.0.1:9464/readyz")]
+        url: String,
+    },
     /// Manage the bearer tokens robots authenticate with.
     #[command(subcommand)]
     Token(token::TokenCommand),
