@@ -3,6 +3,8 @@
 // candidates from HuMem, and the store's maintenance (erase, resets, poses).
 #include "VprKeyFrameDatabase.h"
 
+#include <cstdlib>
+
 #include <unistd.h>
 
 #include <algorithm>
@@ -135,6 +137,11 @@ bool HuMemSettings::Load(const std::string &strSettingsFile)
     ReadString(fs, "HuMem.TlsCertFile", &tlsCertFile);
     ReadString(fs, "HuMem.TlsKeyFile", &tlsKeyFile);
     ReadString(fs, "HuMem.TlsServerName", &tlsServerName);
+    ReadString(fs, "HuMem.AuthToken", &authToken);
+    // A token is a secret: the environment keeps it out of settings files.
+    if(const char* token = std::getenv("HUMEM_TOKEN"))
+        if(*token)
+            authToken = token;
     ReadString(fs, "HuMem.RobotId", &robotId);
     ReadString(fs, "HuMem.SessionId", &sessionId);
     ReadBool(fs, "HuMem.ResetSessionOnStart", &resetSessionOnStart);
@@ -182,6 +189,7 @@ KeyFrameDatabase* VprKeyFrameDatabase::Create(const ORBVocabulary &voc, const st
     options.tls_cert_file = s.tlsCertFile;
     options.tls_key_file = s.tlsKeyFile;
     options.tls_server_name = s.tlsServerName;
+    options.auth_token = s.authToken;
     options.robot_id = s.robotId;
     options.session_id = s.sessionId;
     options.query_timeout = std::chrono::milliseconds(s.queryTimeoutMs);

@@ -63,6 +63,7 @@ struct HuMemSettings
     std::string tlsCertFile;      // HuMem.TlsCertFile: client certificate (mutual TLS)
     std::string tlsKeyFile;       // HuMem.TlsKeyFile: its key
     std::string tlsServerName;    // HuMem.TlsServerName: name the certificate must hold
+    std::string authToken;        // HuMem.AuthToken (or $HUMEM_TOKEN): bearer token, over TLS only
     std::string robotId;          // HuMem.RobotId (default "orbslam3")
     std::string sessionId;        // HuMem.SessionId (default: generated, unique)
     bool resetSessionOnStart;     // HuMem.ResetSessionOnStart (default 0)

@@ -34,6 +34,20 @@ pub struct Config {
     pub log: LogConfig,
     /// Who may call, and read which maps (`[auth]`).
     pub auth: AuthConfig,
+    /// Per-robot rate and size limits (`[quotas]`).
+    pub quotas: QuotaConfig,
+}
+
+/// Per-robot limits (`[quotas]`); 0 means no limit.
+#[derive(Debug, Clone, Default, PartialEq, Serialize, Deserialize)]
+#[serde(default, deny_unknown_fields)]
+pub struct QuotaConfig {
+    /// Keyframes one robot may insert per second (Insert and InsertBatch).
+    pub inserts_per_second: u32,
+    /// Queries one robot may make per second.
+    pub queries_per_second: u32,
+    /// Keyframes one robot may hold in the store.
+    pub max_keyframes_per_robot: u64,
 }
 
 /// Authentication and access rules. Off (every caller may do everything,

@@ -13,6 +13,7 @@
 //! - [`tls`]: TLS on the gRPC port, reloaded when its files change;
 //! - [`auth`]: credentials (tokens, client certificates), who may act for
 //!   which robot and read which maps, the audit trail;
+//! - [`quota`]: per-robot insert and query rates and store size;
 //! - [`api`]: the tonic service, a thin adapter: validates a request, hands
 //!   it to the pipeline, converts the answer;
 //! - [`pipeline`]: what one request does, in domain types: admission, image
@@ -28,6 +29,7 @@ pub mod client;
 pub mod config;
 pub mod metrics;
 pub mod pipeline;
+pub mod quota;
 pub mod server;
 pub mod tls;
 mod watch;

@@ -265,6 +265,21 @@ pub static AUTH_DENIED: LazyLock<IntCounterVec> = LazyLock::new(|| {
     )
 });
 
+/// Requests refused for a per-robot quota, by kind (`insert_rate`,
+/// `query_rate`, `store_size`); no robot label, so bounded.
+pub static QUOTA_REFUSED: LazyLock<IntCounterVec> = LazyLock::new(|| {
+    register(
+        IntCounterVec::new(
+            Opts::new(
+                "humem_quota_refused_total",
+                "requests refused because a robot was over a quota, by kind",
+            ),
+            &["kind"],
+        )
+        .unwrap(),
+    )
+});
+
 /// Records one finished RPC.
 pub fn observe_rpc(rpc: &str, code: tonic::Code, seconds: f64) {
     RPC_REQUESTS
@@ -384,6 +399,9 @@ pub fn init() {
     }
     LazyLock::force(&TLS_HANDSHAKE_FAILURES);
     LazyLock::force(&AUTH_DENIED);
+    for kind in ["insert_rate", "query_rate", "store_size"] {
+        QUOTA_REFUSED.with_label_values(&[kind]);
+    }
     LazyLock::force(&RPC_REQUESTS);
     LazyLock::force(&RPC_DURATION);
     LazyLock::force(&STAGE_DURATION);

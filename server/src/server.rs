@@ -82,7 +82,10 @@ pub async fn serve(config: Config) -> anyhow::Result<()> {
             config.query.concurrent_scans,
             std::time::Duration::from_millis(config.query.max_wait_ms),
         ),
-        auth.clone(),
+        crate::api::service::Policy {
+            auth: auth.clone(),
+            quotas: crate::quota::Quotas::new(&config.quotas),
+        },
     );
     let max = config.server.max_message_bytes;
     let api = PlaceRecognitionServer::new(service)

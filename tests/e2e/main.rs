@@ -18,6 +18,7 @@ mod images;
 mod latest_wins;
 mod maintenance;
 mod metrics;
+mod quotas;
 mod retrieval;
 mod text_recall;
 mod tls;

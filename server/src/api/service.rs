@@ -17,9 +17,22 @@ use crate::pipeline::latest_wins::LatestWins;
 use crate::pipeline::{Pipeline, QueryAnswer};
 use crate::proto;
 use crate::proto::place_recognition_server::PlaceRecognition;
+use crate::quota::Quotas;
 use humem_core::vpr::VprParams;
 use humem_perception::Perception;
 use humem_store::{MapKey, Mutation, Store};
+
+/// What limits callers: who they are and what they may do ([`auth`]), and
+/// how much ([`quota`]).
+///
+/// [`auth`]: crate::auth
+/// [`quota`]: crate::quota
+pub struct Policy {
+    /// Credentials and access rules.
+    pub auth: Authenticator,
+    /// Per-robot rates and store size.
+    pub quotas: Quotas,
+}
 
 /// The service state shared by all requests.
 #[derive(Clone)]
@@ -27,6 +40,7 @@ pub struct PlaceRecognitionService {
     pipeline: Pipeline,
     limits: Limits,
     auth: Authenticator,
+    quotas: Arc<Quotas>,
 }
 
 impl PlaceRecognitionService {
@@ -38,12 +52,13 @@ impl PlaceRecognitionService {
         perception: Option<Perception>,
         scheduler: Arc<LatestWins>,
         admission: Arc<QueryAdmission>,
-        auth: Authenticator,
+        policy: Policy,
     ) -> Self {
         PlaceRecognitionService {
             pipeline: Pipeline::new(store, params, perception, scheduler, admission),
             limits,
-            auth,
+            auth: policy.auth,
+            quotas: Arc::new(policy.quotas),
         }
     }
 }
@@ -67,6 +82,9 @@ impl PlaceRecognition for PlaceRecognitionService {
             "keyframe.robot_id",
             &pending.key.robot_id,
         )?;
+        self.quotas.inserts(&pending.key.robot_id, 1)?;
+        self.quotas
+            .store_size(&self.pipeline.store().index(), &[&pending.key])?;
         let span = tracing::Span::current();
         span.record("robot", pending.key.robot_id.as_str());
         span.record("session", pending.key.session_id.as_str());
@@ -97,6 +115,16 @@ impl PlaceRecognition for PlaceRecognitionService {
                 &keyframe.key.robot_id,
             )?;
         }
+        let mut per_robot: std::collections::BTreeMap<&str, usize> = Default::default();
+        for keyframe in &pending {
+            *per_robot.entry(keyframe.key.robot_id.as_str()).or_default() += 1;
+        }
+        for (robot, n) in per_robot {
+            self.quotas.inserts(robot, n)?;
+        }
+        let keys: Vec<_> = pending.iter().map(|k| &k.key).collect();
+        self.quotas
+            .store_size(&self.pipeline.store().index(), &keys)?;
         tracing::Span::current().record("keyframes", pending.len());
         let outcome = self.pipeline.insert_batch(pending).await?;
         Ok(Response::new(proto::InsertBatchResponse {
@@ -119,6 +147,7 @@ impl PlaceRecognition for PlaceRecognitionService {
         let mut spec = validate::query(request.into_inner(), &self.limits)?;
         self.auth
             .check_acts_for("Query", &caller, "robot_id", &spec.session.robot_id)?;
+        self.quotas.query(&spec.session.robot_id)?;
         // Every scope is narrowed to the robots the caller may read.
         spec.readable_robots = caller.readable_robots(self.auth.groups());
         let span = tracing::Span::current();
