@@ -67,7 +67,10 @@ async fn a_robot_over_its_quota_is_told_when_to_retry_and_others_go_on() {
     client.insert_batch(batch(21..30)).await.unwrap();
     let status = client.insert_batch(batch(30..31)).await.unwrap_err();
     assert_eq!(status.code(), Code::ResourceExhausted);
-    assert!(status.message().contains("holds 30 keyframes"), "{status:?}");
+    assert!(
+        status.message().contains("holds 30 keyframes"),
+        "{status:?}"
+    );
     client.insert_batch(batch(0..1)).await.unwrap();
 
     // Queries: two a second.

@@ -14,3 +14,6 @@ pub mod transport_status;
 pub mod validate;
 
 pub use service::PlaceRecognitionService;
+
+#[cfg(test)]
+mod fuzz_tests;
