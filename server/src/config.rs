@@ -189,6 +189,11 @@ pub struct StoreConfig {
     /// Keyframe changes between index snapshots (0: only at shutdown). A
     /// restart replays at most about this many changes from the journal.
     pub snapshot_every: u64,
+    /// Free bytes kept on the store's disk: inserts, pose updates and
+    /// snapshots that would go below are refused with RESOURCE_EXHAUSTED
+    /// (erasing still works); 0: no reserve. sled does not survive running
+    /// out of space, so keep this above a few `server.max_message_bytes`.
+    pub min_free_bytes: u64,
 }
 
 impl Default for StoreConfig {
@@ -199,6 +204,7 @@ impl Default for StoreConfig {
             write_queue: 1024,
             scene_top_k: 16,
             snapshot_every: humem_store::DEFAULT_SNAPSHOT_EVERY,
+            min_free_bytes: humem_store::disk::DEFAULT_MIN_FREE_BYTES,
         }
     }
 }

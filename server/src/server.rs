@@ -39,6 +39,7 @@ pub async fn serve(config: Config) -> anyhow::Result<()> {
         dim: config.store.descriptor_dim,
         queue_capacity: config.store.write_queue,
         snapshot_every: config.store.snapshot_every,
+        min_free_bytes: config.store.min_free_bytes,
     };
     let data_dir = config.store.data_dir.clone();
     let opening = tokio::task::spawn_blocking(move || {

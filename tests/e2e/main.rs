@@ -14,6 +14,7 @@ mod durability;
 mod errors;
 mod eval;
 mod fidelity;
+mod full_disk;
 mod images;
 mod latest_wins;
 mod maintenance;

@@ -57,6 +57,8 @@ pub(crate) struct Checkpoints {
     pub running: AtomicBool,
     /// One snapshot at a time.
     pub writing: Mutex<()>,
+    /// Free space kept on the store's disk (the writer checks it too).
+    pub disk: crate::disk::DiskGuard,
 }
 
 impl Checkpoints {
@@ -99,6 +101,16 @@ impl Checkpoints {
         if applied == self.written.load(Ordering::Acquire) {
             return Ok(None);
         }
+        // The new file is written beside the old one: room for a whole
+        // snapshot (its last size, or the descriptors' if there is none)
+        // must be left above the reserve.
+        let estimate = std::fs::metadata(snapshot::path(&self.dir))
+            .map(|m| m.len())
+            .unwrap_or_else(|_| {
+                let index = self.index.read();
+                (index.len() * (index.dim() * 4 + 256)) as u64
+            });
+        self.disk.room_for(estimate)?;
         let keys = self.since.swap(0, Ordering::Relaxed);
         let (unpublished, sequence) =
             match snapshot::write(&self.dir, self.store_id, &self.index, &self.applied) {

@@ -21,6 +21,7 @@
 //! - `checkpoint`: when snapshots are taken, on their own thread.
 
 mod checkpoint;
+pub mod disk;
 pub use checkpoint::SnapshotReport;
 pub mod codec;
 pub mod journal;
@@ -94,6 +95,15 @@ pub enum StoreError {
     /// A journal entry could not be written.
     #[error("write journal: {0}")]
     Journal(String),
+    /// The disk holding the store is nearly full: the change was refused
+    /// before sled could run out of space (which it does not survive).
+    #[error("the disk holding the store is nearly full: {available} bytes free, {reserve} kept in reserve (store.min_free_bytes); erase keyframes or free disk space")]
+    DiskFull {
+        /// Bytes free.
+        available: u64,
+        /// Bytes the store keeps free.
+        reserve: u64,
+    },
     /// Writing the index snapshot failed (the store itself is unharmed).
     #[error("index snapshot: {0}")]
     Snapshot(#[from] snapshot::SnapshotError),
@@ -159,6 +169,10 @@ pub struct StoreOptions {
     /// the threshold for one right after open (0: snapshots only when
     /// asked, as at shutdown).
     pub snapshot_every: u64,
+    /// Free bytes kept on the store's disk: inserts, pose updates and
+    /// snapshots that would go below are refused (removals are not); 0:
+    /// no reserve. See [`disk`].
+    pub min_free_bytes: u64,
 }
 
 impl Default for StoreOptions {
@@ -167,6 +181,16 @@ impl Default for StoreOptions {
             dim: 0,
             queue_capacity: 1024,
             snapshot_every: DEFAULT_SNAPSHOT_EVERY,
+            min_free_bytes: disk::DEFAULT_MIN_FREE_BYTES,
+        }
+    }
+}
+
+impl From<disk::Short> for StoreError {
+    fn from(short: disk::Short) -> StoreError {
+        StoreError::DiskFull {
+            available: short.available,
+            reserve: short.reserve,
         }
     }
 }
@@ -249,6 +273,7 @@ impl Store {
             dim,
             queue_capacity,
             snapshot_every,
+            min_free_bytes,
         } = options;
         let db = sled::Config::new()
             .path(dir)
@@ -318,6 +343,7 @@ impl Store {
             written: AtomicU64::new(snapshot_sequence.unwrap_or(u64::MAX)),
             running: AtomicBool::new(false),
             writing: parking_lot::Mutex::new(()),
+            disk: disk::DiskGuard::new(dir, min_free_bytes),
         });
         // Without a current snapshot the next open would walk the tree (or
         // a long journal) again: write one now, in the background.

@@ -161,7 +161,21 @@ impl Writer {
         }
     }
 
-    fn commit(&mut self, group: Vec<(Mutation, Reply)>) {
+    fn commit(&mut self, mut group: Vec<(Mutation, Reply)>) {
+        // Near a full disk, what adds data is refused before sled sees it
+        // (sled does not survive ENOSPC); removals go on, they make room.
+        if let Err(short) = self.checkpoints.disk.room_for(0) {
+            let (refused, kept) = group.into_iter().partition::<Vec<_>, _>(|(m, _)| {
+                matches!(m, Mutation::Insert(_) | Mutation::UpdatePoses { .. })
+            });
+            for (_, reply) in refused {
+                let _ = reply.send(Err(short.into()));
+            }
+            if kept.is_empty() {
+                return;
+            }
+            group = kept;
+        }
         let mut changes = Vec::new();
         let mut staged = Vec::with_capacity(group.len());
         let mut journaled = 0;

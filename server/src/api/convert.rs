@@ -203,6 +203,14 @@ fn store_status(e: StoreError) -> Status {
             );
             status
         }
+        StoreError::DiskFull { .. } => {
+            let mut status = Status::resource_exhausted(e.to_string());
+            status.metadata_mut().insert(
+                "retry-after-ms",
+                tonic::metadata::MetadataValue::from(60_000u32),
+            );
+            status
+        }
         StoreError::WriterGone => Status::unavailable(e.to_string()),
         _ => {
             tracing::error!(error = %e, "store failure");
