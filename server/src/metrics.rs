@@ -321,17 +321,30 @@ fn code_name(code: tonic::Code) -> &'static str {
     }
 }
 
+/// Maps that get a `humem_keyframes` series of their own: the largest;
+/// the rest are summed into one series labelled `_other`, so a fleet of
+/// any size exposes a bounded number of series.
+pub const MAX_MAP_SERIES: usize = 200;
+
 /// The text exposition, with the store's gauges brought up to date.
 pub fn render(store: &Store) -> String {
     KEYFRAMES.reset();
-    for (map, count) in store.index().map_counts() {
+    let mut maps = store.index().map_counts();
+    maps.sort_by(|a, b| b.1.cmp(&a.1).then_with(|| a.0.cmp(&b.0)));
+    let others: usize = maps.iter().skip(MAX_MAP_SERIES).map(|(_, n)| n).sum();
+    for (map, count) in maps.iter().take(MAX_MAP_SERIES) {
         KEYFRAMES
             .with_label_values(&[
                 map.session.robot_id.as_str(),
                 map.session.session_id.as_str(),
                 &map.map_id.to_string(),
             ])
-            .set(count as i64);
+            .set(*count as i64);
+    }
+    if maps.len() > MAX_MAP_SERIES {
+        KEYFRAMES
+            .with_label_values(&["_other", "_other", "_other"])
+            .set(others as i64);
     }
     STORE_BYTES.set(i64::try_from(store.disk_bytes()).unwrap_or(i64::MAX));
     let opened = store.opened();

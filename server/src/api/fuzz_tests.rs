@@ -46,25 +46,9 @@ fn features() -> proto::Features {
 fn keyframe() -> proto::Keyframe {
     proto::Keyframe {
         robot_id: "car-1".into(),
-        session_id: "s".into(),
         keyframe_id: Some(7),
-        frame_id: Some(21),
-        timestamp: 0.7,
-        map_id: Some(0),
-        pose: Some(proto::Pose {
-            translation: Some(proto::Vec3 {
-                x: 1.0,
-                y: 2.0,
-                z: 0.5,
-            }),
-            rotation: Some(proto::Quaternion {
-                w: 1.0,
-                x: 0.0,
-                y: 0.0,
-                z: 0.0,
-            }),
-        }),
         content: Some(proto::keyframe::Content::Features(features())),
+        ..validate::tests::keyframe_msg()
     }
 }
 

@@ -596,4 +596,4 @@ pub fn query(mut r: proto::QueryRequest, limits: &Limits) -> Result<QuerySpec> {
 }
 
 #[cfg(test)]
-mod tests;
+pub(crate) mod tests;

@@ -9,7 +9,8 @@ const LIMITS: Limits = Limits {
     top_n: 5,
 };
 
-fn keyframe_msg() -> proto::Keyframe {
+/// A valid keyframe message (also the fuzzers' seed).
+pub(crate) fn keyframe_msg() -> proto::Keyframe {
     proto::Keyframe {
         robot_id: "r".into(),
         session_id: "s".into(),
