@@ -411,7 +411,21 @@ pub fn init() {
         TLS_RELOADS.with_label_values(&[result]);
     }
     LazyLock::force(&TLS_HANDSHAKE_FAILURES);
-    LazyLock::force(&AUTH_DENIED);
+    // Every (rpc, reason) series exists from the start, at 0.
+    for rpc in [
+        "Insert",
+        "InsertBatch",
+        "Query",
+        "Erase",
+        "ResetMap",
+        "ResetSession",
+        "UpdatePoses",
+        "Stats",
+    ] {
+        for reason in ["unauthenticated", "permission_denied"] {
+            AUTH_DENIED.with_label_values(&[rpc, reason]);
+        }
+    }
     for kind in ["insert_rate", "query_rate", "store_size"] {
         QUOTA_REFUSED.with_label_values(&[kind]);
     }
