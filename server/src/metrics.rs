@@ -19,6 +19,18 @@ use prometheus::{
 use humem_core::observe::{QueueObserver, SharedObserver};
 use humem_store::{IndexSource, Store};
 
+/// The API's methods, as the `rpc` label of every per-RPC metric.
+pub const RPCS: [&str; 8] = [
+    "Insert",
+    "InsertBatch",
+    "Query",
+    "Erase",
+    "ResetMap",
+    "ResetSession",
+    "UpdatePoses",
+    "Stats",
+];
+
 /// The registry every HuMem metric is in.
 pub static REGISTRY: LazyLock<Registry> = LazyLock::new(Registry::new);
 
@@ -347,15 +359,6 @@ pub fn render(store: &Store) -> String {
             .set(others as i64);
     }
     STORE_BYTES.set(i64::try_from(store.disk_bytes()).unwrap_or(i64::MAX));
-    let opened = store.opened();
-    let (source, replayed) = match opened.source {
-        IndexSource::Snapshot { replayed } => ("snapshot", replayed),
-        IndexSource::Tree { .. } => ("tree", 0),
-    };
-    STORE_OPEN
-        .with_label_values(&[source])
-        .set(opened.elapsed.as_secs_f64());
-    STORE_REPLAYED.set(replayed as i64);
     let mut buffer = Vec::new();
     TextEncoder::new()
         .encode(&REGISTRY.gather(), &mut buffer)
@@ -412,16 +415,7 @@ pub fn init() {
     }
     LazyLock::force(&TLS_HANDSHAKE_FAILURES);
     // Every (rpc, reason) series exists from the start, at 0.
-    for rpc in [
-        "Insert",
-        "InsertBatch",
-        "Query",
-        "Erase",
-        "ResetMap",
-        "ResetSession",
-        "UpdatePoses",
-        "Stats",
-    ] {
+    for rpc in RPCS {
         for reason in ["unauthenticated", "permission_denied"] {
             AUTH_DENIED.with_label_values(&[rpc, reason]);
         }
@@ -441,6 +435,19 @@ pub fn init() {
     LazyLock::force(&CANDIDATE_SCORE);
     LazyLock::force(&KEYFRAMES);
     LazyLock::force(&STORE_BYTES);
+}
+
+/// Records how the store was opened (it does not change while serving).
+pub fn store_opened(store: &Store) {
+    let opened = store.opened();
+    let (source, replayed) = match opened.source {
+        IndexSource::Snapshot { replayed } => ("snapshot", replayed),
+        IndexSource::Tree { .. } => ("tree", 0),
+    };
+    STORE_OPEN
+        .with_label_values(&[source])
+        .set(opened.elapsed.as_secs_f64());
+    STORE_REPLAYED.set(replayed as i64);
 }
 
 /// Serves `/metrics` on `listen` until `shutdown` resolves, with plain

@@ -18,8 +18,8 @@ use tonic::Status;
 
 use crate::config::QuotaConfig;
 use crate::metrics;
-use humem_core::index::Index;
 use humem_core::keyframe::KeyframeKey;
+use humem_store::Store;
 
 /// The limiters.
 pub struct Quotas {
@@ -103,10 +103,11 @@ impl Quotas {
 
     /// Whether storing `keys` keeps each robot within its keyframe quota
     /// (keys already stored replace themselves and add nothing).
-    pub fn store_size(&self, index: &Index, keys: &[&KeyframeKey]) -> Result<(), Status> {
+    pub fn store_size(&self, store: &Store, keys: &[&KeyframeKey]) -> Result<(), Status> {
         if self.max_keyframes == 0 {
             return Ok(());
         }
+        let index = store.index();
         let mut added: std::collections::BTreeMap<&str, u64> = Default::default();
         for key in keys {
             if index.row_of(key).is_none() {
@@ -116,13 +117,8 @@ impl Quotas {
         if added.is_empty() {
             return Ok(());
         }
-        let counts = index.map_counts();
         for (robot, new) in added {
-            let held: u64 = counts
-                .iter()
-                .filter(|(map, _)| map.session.robot_id == robot)
-                .map(|(_, n)| *n as u64)
-                .sum();
+            let held = index.robot_keyframes(robot) as u64;
             if held + new > self.max_keyframes {
                 return Err(exhausted(
                     "store_size",

@@ -113,6 +113,7 @@ pub async fn serve(config: Config) -> anyhow::Result<()> {
         .context("building the reflection service (v1alpha)")?;
 
     metrics::init();
+    metrics::store_opened(&store);
     let (stop_tx, stop_rx) = tokio::sync::watch::channel(false);
     // True from the moment the gRPC port is open until shutdown begins.
     let (serving_tx, serving_rx) = tokio::sync::watch::channel(false);

@@ -428,16 +428,7 @@ async fn bodies_that_are_not_protobuf_get_invalid_argument_on_every_rpc() {
     for _ in 0..64 {
         bodies.push(random.new_tree(&mut runner).unwrap().current());
     }
-    let rpcs = [
-        "Insert",
-        "InsertBatch",
-        "Query",
-        "Erase",
-        "ResetMap",
-        "ResetSession",
-        "UpdatePoses",
-        "Stats",
-    ];
+    let rpcs = humem_server::metrics::RPCS;
     let mut refused = 0;
     for rpc in rpcs {
         for body in &bodies {

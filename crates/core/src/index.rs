@@ -279,6 +279,15 @@ impl Index {
             .unwrap_or_default()
     }
 
+    /// Keyframes stored for `robot_id`, over all its sessions and maps.
+    pub fn robot_keyframes(&self, robot_id: &str) -> usize {
+        self.tracks
+            .iter()
+            .filter(|(map, _)| map.session.robot_id == robot_id)
+            .map(|(_, track)| track.len())
+            .sum()
+    }
+
     /// Keyframe counts per map, sorted by map.
     pub fn map_counts(&self) -> Vec<(MapKey, usize)> {
         let mut counts: Vec<_> = self

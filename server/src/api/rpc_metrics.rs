@@ -21,23 +21,11 @@ use crate::metrics;
 /// The gRPC path prefix of the API's methods.
 const SERVICE_PREFIX: &str = "/humem.v1.PlaceRecognition/";
 
-/// The methods, as their metric label.
-const METHODS: [&str; 8] = [
-    "Insert",
-    "InsertBatch",
-    "Query",
-    "Erase",
-    "ResetMap",
-    "ResetSession",
-    "UpdatePoses",
-    "Stats",
-];
-
 /// The method label of a request path; `None` for other services (health,
 /// reflection) and unknown methods.
 fn method_of(path: &str) -> Option<&'static str> {
     let method = path.strip_prefix(SERVICE_PREFIX)?;
-    METHODS.into_iter().find(|m| *m == method)
+    metrics::RPCS.into_iter().find(|m| *m == method)
 }
 
 /// The gRPC status of a response, from its headers (trailers-only) or OK.

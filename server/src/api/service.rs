@@ -84,7 +84,7 @@ impl PlaceRecognition for PlaceRecognitionService {
         )?;
         self.quotas.inserts(&pending.key.robot_id, 1)?;
         self.quotas
-            .store_size(&self.pipeline.store().index(), &[&pending.key])?;
+            .store_size(self.pipeline.store(), &[&pending.key])?;
         let span = tracing::Span::current();
         span.record("robot", pending.key.robot_id.as_str());
         span.record("session", pending.key.session_id.as_str());
@@ -123,8 +123,7 @@ impl PlaceRecognition for PlaceRecognitionService {
             self.quotas.inserts(robot, n)?;
         }
         let keys: Vec<_> = pending.iter().map(|k| &k.key).collect();
-        self.quotas
-            .store_size(&self.pipeline.store().index(), &keys)?;
+        self.quotas.store_size(self.pipeline.store(), &keys)?;
         tracing::Span::current().record("keyframes", pending.len());
         let outcome = self.pipeline.insert_batch(pending).await?;
         Ok(Response::new(proto::InsertBatchResponse {
