@@ -5,8 +5,8 @@
 #   test  everything scripts/test.sh needs besides: the DejaVu fonts (the OCR
 #         test's rendered text, evaluation charts), Prometheus with promtool and
 #         systemd-analyze (deployment checks), gRPC C++, protobuf and GoogleTest
-#         (client-cpp), and the openssl command (the C++ suite's TLS
-#         certificates)
+#         (client-cpp), the openssl command (the C++ suite's TLS
+#         certificates) and nats-server (the cluster-mode tests)
 # The Rust toolchain (with rustfmt and clippy) and Python 3.11 are expected on
 # the machine. Installs with apt-get as root, or through passwordless sudo;
 # otherwise it stops at once and prints the one command to run first.
@@ -23,6 +23,7 @@ if [ "$purpose" = test ]; then
     command -v systemd-analyze >/dev/null || missing+=(systemd)
     command -v grpc_cpp_plugin >/dev/null || missing+=(protobuf-compiler-grpc)
     command -v openssl >/dev/null || missing+=(openssl)
+    command -v nats-server >/dev/null || missing+=(nats-server)
     dpkg -s libgrpc++-dev libprotobuf-dev protobuf-compiler libgtest-dev >/dev/null 2>&1 \
         || missing+=(libgrpc++-dev libprotobuf-dev protobuf-compiler libgtest-dev)
 elif [ "$purpose" != run ]; then

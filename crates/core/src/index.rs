@@ -22,7 +22,9 @@ use crate::vpr::eligibility::QueryContext;
 use crate::vpr::{self, DescriptorMatrix, KeyframeMemory};
 
 /// A map: (robot, session, map id).
-#[derive(Debug, Clone, PartialEq, Eq, Hash, PartialOrd, Ord)]
+#[derive(
+    Debug, Clone, PartialEq, Eq, Hash, PartialOrd, Ord, serde::Serialize, serde::Deserialize,
+)]
 pub struct MapKey {
     /// The robot and session the map belongs to.
     pub session: SessionKey,

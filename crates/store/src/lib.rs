@@ -109,8 +109,19 @@ pub enum StoreError {
     Snapshot(#[from] snapshot::SnapshotError),
 }
 
-/// One change to the store, as the writer applies it.
-#[derive(Debug, Clone)]
+impl StoreError {
+    /// Whether the change itself is refused (a descriptor of the wrong
+    /// length), so that every store refuses it alike; otherwise the failure
+    /// is this store's (disk, sled, queue) and the same change may succeed
+    /// later.
+    pub fn is_refusal(&self) -> bool {
+        matches!(self, StoreError::DimensionMismatch { .. })
+    }
+}
+
+/// One change to the store, as the writer applies it. Serializable, so that
+/// a replicated log can carry it (`humem-cluster`).
+#[derive(Debug, Clone, PartialEq, serde::Serialize, serde::Deserialize)]
 pub enum Mutation {
     /// Store keyframes (replacing same keys), atomically.
     Insert(Vec<SemanticKeyframe>),
@@ -135,7 +146,7 @@ pub enum Mutation {
 }
 
 /// A corrected pose for one keyframe of a session.
-#[derive(Debug, Clone, Copy, PartialEq)]
+#[derive(Debug, Clone, Copy, PartialEq, serde::Serialize, serde::Deserialize)]
 pub struct PoseUpdate {
     /// Keyframe id, unique within the session.
     pub keyframe_id: u64,
@@ -156,6 +167,27 @@ pub struct MutationOutcome {
     pub missing: Vec<u64>,
     /// Keyframes in the store afterwards.
     pub store_keyframes: u64,
+}
+
+/// A change taken from a replicated log, at its position there (1, 2, …).
+#[derive(Debug, Clone)]
+pub struct LogEntry {
+    /// The entry's position in the log; recorded with the change.
+    pub position: u64,
+    /// The change.
+    pub mutation: Mutation,
+}
+
+/// What became of a batch of [`LogEntry`]s ([`Store::apply_log`]).
+#[derive(Debug, Default)]
+pub struct LogApplied {
+    /// One result per entry applied, in order. An entry refused for what it
+    /// is ([`StoreError::is_refusal`]) is refused alike on every replica:
+    /// it counts as applied, with its error.
+    pub results: Vec<Result<MutationOutcome, StoreError>>,
+    /// Why the entries after `results` were not applied (a full disk, a
+    /// failed write): they must be given again, in order.
+    pub stopped: Option<StoreError>,
 }
 
 /// How the store is opened.
@@ -239,6 +271,8 @@ const KEYFRAMES_TREE: &str = "keyframes";
 const META_TREE: &str = "meta";
 const META_FORMAT: &[u8] = b"format_version";
 const META_DIM: &[u8] = b"descriptor_dim";
+/// Position of the last replicated-log entry applied (cluster mode).
+const META_LOG_POSITION: &[u8] = b"log_position";
 
 /// Version of the store's layout, recorded in its meta tree. 3 added the
 /// write journal (and the index snapshot beside the tree) to version 2's
@@ -394,6 +428,24 @@ impl Store {
         self.writer.submit(mutation).await
     }
 
+    /// Applies entries of a replicated log, in order, each recording its
+    /// position in the same transaction as its change, so a replica that
+    /// restarts resumes right after the last entry it applied
+    /// ([`Store::log_position`]). Stops at the first entry that cannot be
+    /// applied now; see [`LogApplied`].
+    pub async fn apply_log(&self, entries: Vec<LogEntry>) -> Result<LogApplied, StoreError> {
+        self.writer.submit_log(entries).await
+    }
+
+    /// Position of the last replicated-log entry applied (0: none).
+    pub fn log_position(&self) -> Result<u64, StoreError> {
+        let meta = self.db.open_tree(META_TREE)?;
+        Ok(meta
+            .get(META_LOG_POSITION)?
+            .and_then(|v| v.as_ref().try_into().ok().map(u64::from_be_bytes))
+            .unwrap_or(0))
+    }
+
     /// Read access to the index, for queries. Hold it briefly.
     pub fn index(&self) -> parking_lot::RwLockReadGuard<'_, Index> {
         self.index.read()
@@ -546,6 +598,8 @@ fn check_format(meta: &sled::Tree) -> Result<(), StoreError> {
     }
 }
 
+#[cfg(test)]
+mod log_tests;
 #[cfg(test)]
 mod restart_tests;
 #[cfg(test)]

@@ -18,7 +18,10 @@ use tokio::sync::{mpsc, oneshot};
 use super::checkpoint::Checkpoints;
 use super::codec::{self, decode_record, encode_key, encode_record};
 use super::journal;
-use super::{Index, MapKey, Mutation, MutationOutcome, PoseUpdate, StoreError, META_DIM};
+use super::{
+    Index, LogApplied, LogEntry, MapKey, Mutation, MutationOutcome, PoseUpdate, StoreError,
+    META_DIM, META_LOG_POSITION,
+};
 use humem_core::keyframe::{KeyframeKey, Pose, SemanticKeyframe, SessionKey};
 use humem_core::observe::SharedObserver;
 
@@ -26,6 +29,37 @@ use humem_core::observe::SharedObserver;
 const MAX_GROUP: usize = 256;
 
 type Reply = oneshot::Sender<Result<MutationOutcome, StoreError>>;
+type LogReply = oneshot::Sender<LogApplied>;
+
+/// What the writer is asked to do.
+enum Job {
+    /// One change, answered with its outcome.
+    Change(Mutation, Reply),
+    /// Entries of a replicated log, applied in order, each recording its
+    /// position; stops at the first that cannot be applied now.
+    Log(Vec<LogEntry>, LogReply),
+}
+
+impl Job {
+    /// Changes this job holds, for the queue depth.
+    fn len(&self) -> usize {
+        match self {
+            Job::Change(..) => 1,
+            Job::Log(entries, _) => entries.len(),
+        }
+    }
+}
+
+/// Whether a change adds data (refused near a full disk; removals are not).
+fn adds_data(mutation: &Mutation) -> bool {
+    matches!(mutation, Mutation::Insert(_) | Mutation::UpdatePoses { .. })
+}
+
+/// A job's answer, sent after its group's flush.
+enum Answer {
+    Change(Reply, Result<MutationOutcome, StoreError>),
+    Log(LogReply, LogApplied),
+}
 
 /// The trees the writer writes.
 pub(super) struct Trees {
@@ -38,7 +72,7 @@ pub(super) struct Trees {
 /// Sending side of the writer's queue.
 #[derive(Clone)]
 pub(super) struct WriterHandle {
-    queue: mpsc::Sender<(Mutation, Reply)>,
+    queue: mpsc::Sender<Job>,
     capacity: usize,
     observer: SharedObserver,
 }
@@ -49,18 +83,29 @@ const QUEUE: &str = "store_writer";
 impl WriterHandle {
     pub async fn submit(&self, mutation: Mutation) -> Result<MutationOutcome, StoreError> {
         let (reply, answer) = oneshot::channel();
+        self.send(Job::Change(mutation, reply))?;
+        answer.await.map_err(|_| StoreError::WriterGone)?
+    }
+
+    pub async fn submit_log(&self, entries: Vec<LogEntry>) -> Result<LogApplied, StoreError> {
+        let (reply, answer) = oneshot::channel();
+        self.send(Job::Log(entries, reply))?;
+        answer.await.map_err(|_| StoreError::WriterGone)
+    }
+
+    fn send(&self, job: Job) -> Result<(), StoreError> {
+        let depth = job.len() as i64;
         // Counted before sending, so the writer's decrement never comes first.
-        self.observer.depth_changed(QUEUE, 1);
-        self.queue.try_send((mutation, reply)).map_err(|e| {
-            self.observer.depth_changed(QUEUE, -1);
+        self.observer.depth_changed(QUEUE, depth);
+        self.queue.try_send(job).map_err(|e| {
+            self.observer.depth_changed(QUEUE, -depth);
             match e {
                 mpsc::error::TrySendError::Full(_) => StoreError::QueueFull {
                     capacity: self.capacity,
                 },
                 mpsc::error::TrySendError::Closed(_) => StoreError::WriterGone,
             }
-        })?;
-        answer.await.map_err(|_| StoreError::WriterGone)?
+        })
     }
 }
 
@@ -144,7 +189,7 @@ struct Writer {
 }
 
 impl Writer {
-    fn run(mut self, mut receiver: mpsc::Receiver<(Mutation, Reply)>) {
+    fn run(mut self, mut receiver: mpsc::Receiver<Job>) {
         while let Some(first) = receiver.blocking_recv() {
             let mut group = vec![first];
             while group.len() < MAX_GROUP {
@@ -153,7 +198,8 @@ impl Writer {
                     Err(_) => break,
                 }
             }
-            self.observer.depth_changed(QUEUE, -(group.len() as i64));
+            let depth: usize = group.iter().map(Job::len).sum();
+            self.observer.depth_changed(QUEUE, -(depth as i64));
             self.commit(group);
         }
         if let Err(e) = self.trees.db.flush() {
@@ -161,32 +207,43 @@ impl Writer {
         }
     }
 
-    fn commit(&mut self, mut group: Vec<(Mutation, Reply)>) {
+    fn commit(&mut self, group: Vec<Job>) {
         // Near a full disk, what adds data is refused before sled sees it
         // (sled does not survive ENOSPC); removals go on, they make room.
-        if let Err(short) = self.checkpoints.disk.room_for(0) {
-            let (refused, kept) = group.into_iter().partition::<Vec<_>, _>(|(m, _)| {
-                matches!(m, Mutation::Insert(_) | Mutation::UpdatePoses { .. })
-            });
-            for (_, reply) in refused {
-                let _ = reply.send(Err(short.into()));
-            }
-            if kept.is_empty() {
-                return;
-            }
-            group = kept;
-        }
+        let short = self.checkpoints.disk.room_for(0).err();
         let mut changes = Vec::new();
-        let mut staged = Vec::with_capacity(group.len());
+        let mut answers = Vec::with_capacity(group.len());
         let mut journaled = 0;
-        for (mutation, reply) in group {
-            let outcome = self.stage(mutation, &mut changes, &mut journaled);
-            staged.push((reply, outcome));
+        for job in group {
+            match job {
+                Job::Change(mutation, reply) => {
+                    let outcome = match short {
+                        Some(short) if adds_data(&mutation) => Err(short.into()),
+                        _ => self.stage(mutation, None, &mut changes, &mut journaled),
+                    };
+                    answers.push(Answer::Change(reply, outcome));
+                }
+                Job::Log(entries, reply) => {
+                    let applied = self.stage_log(entries, short, &mut changes, &mut journaled);
+                    answers.push(Answer::Log(reply, applied));
+                }
+            }
         }
         if let Err(e) = self.trees.db.flush() {
             tracing::error!(error = %e, "flushing the store failed");
-            for (reply, _) in staged {
-                let _ = reply.send(Err(StoreError::Flush(e.to_string())));
+            for answer in answers {
+                let error = StoreError::Flush(e.to_string());
+                match answer {
+                    Answer::Change(reply, _) => {
+                        let _ = reply.send(Err(error));
+                    }
+                    Answer::Log(reply, _) => {
+                        let _ = reply.send(LogApplied {
+                            results: Vec::new(),
+                            stopped: Some(error),
+                        });
+                    }
+                }
             }
             return;
         }
@@ -209,21 +266,78 @@ impl Writer {
             index.len() as u64
         };
         self.checkpoints.journaled(journaled);
-        for (reply, outcome) in staged {
-            let _ = reply.send(outcome.map(|mut o| {
+        let counted = |outcome: Result<MutationOutcome, StoreError>| {
+            outcome.map(|mut o| {
                 o.store_keyframes = store_keyframes;
                 o
-            }));
+            })
+        };
+        for answer in answers {
+            match answer {
+                Answer::Change(reply, outcome) => {
+                    let _ = reply.send(counted(outcome));
+                }
+                Answer::Log(reply, mut applied) => {
+                    applied.results = applied.results.into_iter().map(counted).collect();
+                    let _ = reply.send(applied);
+                }
+            }
         }
     }
 
+    /// Stages log entries in order, each recording its position. An entry
+    /// refused for what it is (a [`StoreError::is_refusal`]) is refused on
+    /// every replica alike, so its position is recorded and the next one
+    /// goes on; any other failure (a full disk, sled) stops the batch, so
+    /// the log is never applied out of order.
+    fn stage_log(
+        &mut self,
+        entries: Vec<LogEntry>,
+        short: Option<super::disk::Short>,
+        changes: &mut Vec<IndexChange>,
+        journaled: &mut u64,
+    ) -> LogApplied {
+        let mut applied = LogApplied::default();
+        for LogEntry { position, mutation } in entries {
+            if let Some(short) = short.filter(|_| adds_data(&mutation)) {
+                applied.stopped = Some(short.into());
+                break;
+            }
+            match self.stage(mutation, Some(position), changes, journaled) {
+                Ok(outcome) => applied.results.push(Ok(outcome)),
+                Err(refused) if refused.is_refusal() => match self.record_position(position) {
+                    Ok(()) => applied.results.push(Err(refused)),
+                    Err(e) => {
+                        applied.stopped = Some(e);
+                        break;
+                    }
+                },
+                Err(e) => {
+                    applied.stopped = Some(e);
+                    break;
+                }
+            }
+        }
+        applied
+    }
+
+    /// Records the log position of a change that wrote nothing else.
+    fn record_position(&self, position: u64) -> Result<(), StoreError> {
+        self.trees
+            .meta
+            .insert(META_LOG_POSITION, &position.to_be_bytes())?;
+        Ok(())
+    }
+
     /// Stages one mutation: checks it, applies its writes to sled as one
-    /// transaction with its journal entry (not yet flushed), and adds its
+    /// transaction with its journal entry and, for a log entry, its log
+    /// position (not yet flushed), and adds its
     /// index changes to `changes` (made visible after the group's flush).
     /// A change that fails writes nothing.
     fn stage(
         &mut self,
         mutation: Mutation,
+        position: Option<u64>,
         changes: &mut Vec<IndexChange>,
         journaled: &mut u64,
     ) -> Result<MutationOutcome, StoreError> {
@@ -241,6 +355,9 @@ impl Writer {
             }
         }
         if staged.keys.is_empty() {
+            if let Some(position) = position {
+                self.record_position(position)?;
+            }
             return Ok(staged.outcome);
         }
         let sequence = self.sequence + 1;
@@ -251,10 +368,13 @@ impl Writer {
         })
         .map_err(|e| StoreError::Journal(e.to_string()))?;
         let key = journal::key(sequence);
-        (&self.trees.keyframes, &self.trees.journal)
-            .transaction(|(keyframes, journal)| {
+        (&self.trees.keyframes, &self.trees.journal, &self.trees.meta)
+            .transaction(|(keyframes, journal, meta)| {
                 keyframes.apply_batch(&staged.batch)?;
                 journal.insert(&key, entry.as_slice())?;
+                if let Some(position) = position {
+                    meta.insert(META_LOG_POSITION, &position.to_be_bytes())?;
+                }
                 Ok::<_, ConflictableTransactionError<()>>(())
             })
             .map_err(|e| match e {
