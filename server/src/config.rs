@@ -36,6 +36,9 @@ pub struct Config {
     pub auth: AuthConfig,
     /// Per-robot rate and size limits (`[quotas]`).
     pub quotas: QuotaConfig,
+    /// Cluster mode: writes through a replicated NATS JetStream log
+    /// (`[cluster]`), off by default.
+    pub cluster: humem_cluster::ClusterConfig,
 }
 
 /// Per-robot limits (`[quotas]`); 0 means no limit.
@@ -352,6 +355,7 @@ impl Config {
                 )));
             }
         }
+        self.cluster.validate().map_err(ConfigError::Invalid)?;
         if self.server.max_message_bytes < 1024 {
             return Err(ConfigError::Invalid(
                 "server.max_message_bytes must be at least 1024".into(),

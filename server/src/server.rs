@@ -73,6 +73,25 @@ pub async fn serve(config: Config) -> anyhow::Result<()> {
     let auth = crate::auth::Authenticator::start(&config.auth, &config.server.tls)
         .context("loading the token file (auth.tokens_file)")?;
     check_exposure(&config, auth.enabled())?;
+    metrics::init();
+    // Cluster mode: join before serving, and serve only once this replica
+    // has applied every write the log held when it joined.
+    let replica = if config.cluster.enabled {
+        let replica = humem_cluster::Replica::start(
+            config.cluster.clone(),
+            store.clone(),
+            std::sync::Arc::new(metrics::cluster::PrometheusCluster),
+        )
+        .await
+        .context("joining the cluster (cluster.*)")?;
+        replica
+            .catch_up()
+            .await
+            .context("catching up with the write log")?;
+        Some(replica)
+    } else {
+        None
+    };
     let service = PlaceRecognitionService::new(
         store.clone(),
         config.vpr.clone(),
@@ -87,6 +106,7 @@ pub async fn serve(config: Config) -> anyhow::Result<()> {
             auth: auth.clone(),
             quotas: crate::quota::Quotas::new(&config.quotas),
         },
+        replica.clone(),
     );
     let max = config.server.max_message_bytes;
     let api = PlaceRecognitionServer::new(service)
@@ -112,7 +132,6 @@ pub async fn serve(config: Config) -> anyhow::Result<()> {
         .build_v1alpha()
         .context("building the reflection service (v1alpha)")?;
 
-    metrics::init();
     metrics::store_opened(&store);
     let (stop_tx, stop_rx) = tokio::sync::watch::channel(false);
     // True from the moment the gRPC port is open until shutdown begins.
@@ -157,6 +176,23 @@ pub async fn serve(config: Config) -> anyhow::Result<()> {
     // One plain line on stdout, for scripts and tests that asked for port 0.
     println!("humem listening on {local}");
     let _ = serving_tx.send(true);
+    // A replica that stopped applying the log answers from a store that
+    // grows stale: it is no longer ready, so a load balancer moves on.
+    if let Some(replica) = replica.clone() {
+        let serving = serving_tx.clone();
+        tokio::spawn(async move {
+            loop {
+                tokio::time::sleep(std::time::Duration::from_secs(1)).await;
+                if replica.halted().is_some() {
+                    let _ = serving.send(false);
+                    return;
+                }
+                if serving.is_closed() {
+                    return;
+                }
+            }
+        });
+    }
 
     let router = tonic::transport::Server::builder()
         // Outermost, so that it records the code the client receives.
@@ -196,6 +232,9 @@ pub async fn serve(config: Config) -> anyhow::Result<()> {
     }
     .context("running the gRPC server")?;
 
+    if let Some(replica) = &replica {
+        replica.shutdown().await;
+    }
     store.flush().context("flushing the store at shutdown")?;
     // A current snapshot lets the next start skip the journal replay; the
     // store is complete without it, so a failure is only logged.
@@ -212,6 +251,7 @@ pub async fn serve(config: Config) -> anyhow::Result<()> {
 /// Refuses to serve beyond this machine without TLS and credentials,
 /// unless `server.allow_insecure_network` says so.
 fn check_exposure(config: &Config, credentials: bool) -> anyhow::Result<()> {
+    check_nats_exposure(config)?;
     let listen = config.server.listen;
     let tls = config.server.tls.enabled();
     if listen.ip().is_loopback() || (tls && credentials) {
@@ -230,6 +270,31 @@ fn check_exposure(config: &Config, credentials: bool) -> anyhow::Result<()> {
         "refusing to serve {listen} without {missing}: anyone who reaches it could write, read and wipe every robot's maps. \
          Set server.tls.cert and server.tls.key, and auth.tokens_file or server.tls.client_ca; \
          or listen on 127.0.0.1; or set server.allow_insecure_network = true behind a proxy that does both"
+    )
+}
+
+/// Refuses to reach NATS beyond this machine without TLS and credentials
+/// (whoever can publish to the write log can change every replica), unless
+/// `server.allow_insecure_network` says so.
+fn check_nats_exposure(config: &Config) -> anyhow::Result<()> {
+    let cluster = &config.cluster;
+    if !cluster.enabled || cluster.nats_is_local() {
+        return Ok(());
+    }
+    let missing = match (cluster.tls.enabled(), cluster.auth.enabled()) {
+        (true, true) => return Ok(()),
+        (false, false) => "TLS (cluster.tls) and credentials (cluster.auth)",
+        (false, true) => "TLS (cluster.tls)",
+        (true, false) => "credentials (cluster.auth)",
+    };
+    if config.server.allow_insecure_network {
+        tracing::warn!(missing, "reaching NATS over the network without TLS or credentials (server.allow_insecure_network)");
+        return Ok(());
+    }
+    anyhow::bail!(
+        "refusing to reach NATS at {} without {missing}: whoever can publish to the write log changes every replica's store. \
+         Configure them, or set server.allow_insecure_network = true on a network only the cluster uses",
+        cluster.nats_urls.join(",")
     )
 }
 

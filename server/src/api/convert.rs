@@ -8,6 +8,7 @@ use std::time::Duration;
 use crate::pipeline::query::{Candidate, QueryError, QueryOutcome};
 use crate::pipeline::PipelineError;
 use crate::proto;
+use humem_cluster::ClusterError;
 use humem_core::keyframe::{Features, Pose};
 use humem_perception::batcher::BatchError;
 use humem_perception::PerceptionError;
@@ -219,6 +220,21 @@ fn store_status(e: StoreError) -> Status {
     }
 }
 
+/// Cluster errors: a change refused for what it is keeps its store status;
+/// the write log or a replica not reachable or behind is UNAVAILABLE (retry,
+/// maybe on another replica); a change too large is INVALID_ARGUMENT.
+fn cluster_status(e: ClusterError) -> Status {
+    match e {
+        ClusterError::Store(e) => store_status(e),
+        ClusterError::TooLarge(_) => Status::invalid_argument(e.to_string()),
+        ClusterError::Config(_) | ClusterError::Diverged(_) => Status::internal(e.to_string()),
+        ClusterError::Nats(_)
+        | ClusterError::NotApplied { .. }
+        | ClusterError::Behind { .. }
+        | ClusterError::Halted(_) => Status::unavailable(e.to_string()),
+    }
+}
+
 impl From<PipelineError> for Status {
     fn from(e: PipelineError) -> Status {
         match e {
@@ -228,6 +244,8 @@ impl From<PipelineError> for Status {
             PipelineError::Store(e) => store_status(e),
             PipelineError::Query(e) => e.into(),
             PipelineError::Task(_) => Status::internal(e.to_string()),
+            PipelineError::NotClustered => Status::failed_precondition(e.to_string()),
+            PipelineError::Cluster(e) => cluster_status(e),
             PipelineError::Busy(busy) => {
                 let mut status = Status::resource_exhausted(busy.to_string());
                 let retry = u32::try_from(busy.expected.as_millis()).unwrap_or(u32::MAX);

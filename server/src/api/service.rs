@@ -53,9 +53,10 @@ impl PlaceRecognitionService {
         scheduler: Arc<LatestWins>,
         admission: Arc<QueryAdmission>,
         policy: Policy,
+        replica: Option<humem_cluster::Replica>,
     ) -> Self {
         PlaceRecognitionService {
-            pipeline: Pipeline::new(store, params, perception, scheduler, admission),
+            pipeline: Pipeline::new(store, params, perception, scheduler, admission, replica),
             limits,
             auth: policy.auth,
             quotas: Arc::new(policy.quotas),
@@ -91,12 +92,13 @@ impl PlaceRecognition for PlaceRecognitionService {
         span.record("keyframe", pending.key.keyframe_id);
         let from_image = matches!(pending.observation, Observation::Image(..));
         let inserted = self.pipeline.insert(pending).await?;
-        let outcome = inserted.outcome;
+        let outcome = inserted.stored.outcome;
         Ok(Response::new(proto::InsertResponse {
             replaced: outcome.replaced > 0,
             store_keyframes: outcome.store_keyframes,
             timings: convert::timings(&inserted.timings),
             features: from_image.then(|| convert::features(&inserted.features)),
+            log_sequence: inserted.stored.log_sequence,
         }))
     }
 
@@ -125,10 +127,11 @@ impl PlaceRecognition for PlaceRecognitionService {
         let keys: Vec<_> = pending.iter().map(|k| &k.key).collect();
         self.quotas.store_size(self.pipeline.store(), &keys)?;
         tracing::Span::current().record("keyframes", pending.len());
-        let outcome = self.pipeline.insert_batch(pending).await?;
+        let stored = self.pipeline.insert_batch(pending).await?;
         Ok(Response::new(proto::InsertBatchResponse {
-            replaced: u32::try_from(outcome.replaced).unwrap_or(u32::MAX),
-            store_keyframes: outcome.store_keyframes,
+            replaced: u32::try_from(stored.outcome.replaced).unwrap_or(u32::MAX),
+            store_keyframes: stored.outcome.store_keyframes,
+            log_sequence: stored.log_sequence,
         }))
     }
 
@@ -143,6 +146,7 @@ impl PlaceRecognition for PlaceRecognitionService {
             .and_then(|v| v.to_str().ok())
             .and_then(crate::pipeline::admission::grpc_timeout);
         let caller = self.auth.caller("Query", &request)?;
+        let min_log_sequence = request.get_ref().min_log_sequence.unwrap_or(0);
         let mut spec = validate::query(request.into_inner(), &self.limits)?;
         self.auth
             .check_acts_for("Query", &caller, "robot_id", &spec.session.robot_id)?;
@@ -158,6 +162,11 @@ impl PlaceRecognition for PlaceRecognitionService {
         if let Some(frame) = spec.frame_id {
             span.record("frame", frame);
         }
+        // Read-your-writes: the answer waits for this replica to apply the
+        // write log up to the client's last write.
+        self.pipeline
+            .wait_for_log(min_log_sequence, deadline)
+            .await?;
         let outcome = match self.pipeline.query(spec, deadline).await? {
             QueryAnswer::Superseded => {
                 return Ok(Response::new(proto::QueryResponse {
@@ -187,7 +196,8 @@ impl PlaceRecognition for PlaceRecognitionService {
             })
             .await?;
         Ok(Response::new(proto::EraseResponse {
-            erased: outcome.affected,
+            erased: outcome.outcome.affected,
+            log_sequence: outcome.log_sequence,
         }))
     }
 
@@ -210,7 +220,8 @@ impl PlaceRecognition for PlaceRecognitionService {
             .apply(Mutation::ResetMap(MapKey { session, map_id }))
             .await?;
         Ok(Response::new(proto::ResetMapResponse {
-            erased: outcome.affected,
+            erased: outcome.outcome.affected,
+            log_sequence: outcome.log_sequence,
         }))
     }
 
@@ -226,7 +237,8 @@ impl PlaceRecognition for PlaceRecognitionService {
             .check_acts_for("ResetSession", &caller, "robot_id", &session.robot_id)?;
         let outcome = self.pipeline.apply(Mutation::ResetSession(session)).await?;
         Ok(Response::new(proto::ResetSessionResponse {
-            erased: outcome.affected,
+            erased: outcome.outcome.affected,
+            log_sequence: outcome.log_sequence,
         }))
     }
 
@@ -244,8 +256,9 @@ impl PlaceRecognition for PlaceRecognitionService {
             .apply(Mutation::UpdatePoses { session, updates })
             .await?;
         Ok(Response::new(proto::UpdatePosesResponse {
-            updated: outcome.affected,
-            missing_keyframe_ids: outcome.missing,
+            updated: outcome.outcome.affected,
+            missing_keyframe_ids: outcome.outcome.missing,
+            log_sequence: outcome.log_sequence,
         }))
     }
 
@@ -282,6 +295,7 @@ impl PlaceRecognition for PlaceRecognitionService {
             disk_bytes: self.pipeline.store().disk_bytes(),
             format_version: humem_store::STORE_FORMAT,
             server_version: env!("CARGO_PKG_VERSION").into(),
+            log_position: self.pipeline.log_position(),
         }))
     }
 }

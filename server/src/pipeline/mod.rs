@@ -22,6 +22,7 @@ pub mod request;
 use std::sync::Arc;
 use std::time::Duration;
 
+use humem_cluster::{ClusterError, Replica};
 use humem_core::keyframe::{Features, SemanticKeyframe};
 use humem_core::vpr::VprParams;
 use humem_perception::{Perception, PerceptionError};
@@ -66,6 +67,21 @@ pub enum PipelineError {
     /// Too many scans ahead to answer within what the query can wait.
     #[error(transparent)]
     Busy(#[from] Busy),
+    /// Cluster mode: the write log or this replica's place in it.
+    #[error(transparent)]
+    Cluster(#[from] ClusterError),
+    /// A query asked for a log position from a server not in cluster mode.
+    #[error("min_log_sequence: this server is not in cluster mode (cluster.enabled = false), so it has no write log")]
+    NotClustered,
+}
+
+/// A change made durable: what it did, and where it is in the write log.
+#[derive(Debug)]
+pub struct Stored {
+    /// What the store did.
+    pub outcome: MutationOutcome,
+    /// Cluster mode: the change's sequence in the write log (0 otherwise).
+    pub log_sequence: u64,
 }
 
 /// Features of an observation and the time perception spent on them.
@@ -74,8 +90,8 @@ pub type Resolved = (Features, Vec<(&'static str, Duration)>);
 /// A stored keyframe, with the features it was stored with.
 #[derive(Debug)]
 pub struct Inserted {
-    /// What the store did.
-    pub outcome: MutationOutcome,
+    /// What the store did, and the log position.
+    pub stored: Stored,
     /// The keyframe's features (computed, when it came as an image).
     pub features: Features,
     /// Time per perception stage.
@@ -102,6 +118,8 @@ pub struct Pipeline {
     scheduler: Arc<LatestWins>,
     /// Scan slots shared by all robots.
     admission: Arc<QueryAdmission>,
+    /// Cluster mode: writes go through the replicated log.
+    replica: Option<Replica>,
 }
 
 impl Pipeline {
@@ -112,6 +130,7 @@ impl Pipeline {
         perception: Option<Perception>,
         scheduler: Arc<LatestWins>,
         admission: Arc<QueryAdmission>,
+        replica: Option<Replica>,
     ) -> Self {
         Pipeline {
             store,
@@ -119,7 +138,47 @@ impl Pipeline {
             perception,
             scheduler,
             admission,
+            replica,
         }
+    }
+
+    /// Makes a change durable: through the write log in cluster mode (the
+    /// answer waits until this replica has applied it), else straight to
+    /// the store.
+    async fn write(&self, mutation: Mutation) -> Result<Stored, PipelineError> {
+        match &self.replica {
+            Some(replica) => {
+                let written = replica.write(mutation).await?;
+                Ok(Stored {
+                    outcome: written.outcome,
+                    log_sequence: written.sequence,
+                })
+            }
+            None => Ok(Stored {
+                outcome: self.store.apply(mutation).await?,
+                log_sequence: 0,
+            }),
+        }
+    }
+
+    /// Waits until this replica has applied the write log up to
+    /// `sequence` (read-your-writes), within `deadline` at most.
+    pub async fn wait_for_log(
+        &self,
+        sequence: u64,
+        deadline: Option<Duration>,
+    ) -> Result<(), PipelineError> {
+        match &self.replica {
+            Some(replica) => Ok(replica.wait_for(sequence, deadline).await?),
+            None if sequence == 0 => Ok(()),
+            None => Err(PipelineError::NotClustered),
+        }
+    }
+
+    /// Cluster mode: the write-log position this replica has applied (0
+    /// otherwise).
+    pub fn log_position(&self) -> u64 {
+        self.replica.as_ref().map_or(0, Replica::applied)
     }
 
     /// The store, for read-only requests (statistics).
@@ -132,11 +191,11 @@ impl Pipeline {
         let (keyframes, mut resolved) = self.resolve_all(vec![pending]).await?;
         self.check_dims(|_| "keyframe".into(), &keyframes)?;
         let (features, timings) = resolved.pop().unwrap_or_default();
-        let outcome = self.store.apply(Mutation::Insert(keyframes)).await?;
+        let stored = self.write(Mutation::Insert(keyframes)).await?;
         metrics::KEYFRAMES_INSERTED.inc();
         metrics::observe_stages(&timings);
         Ok(Inserted {
-            outcome,
+            stored,
             features,
             timings,
         })
@@ -146,21 +205,21 @@ impl Pipeline {
     pub async fn insert_batch(
         &self,
         pending: Vec<PendingKeyframe>,
-    ) -> Result<MutationOutcome, PipelineError> {
+    ) -> Result<Stored, PipelineError> {
         let (keyframes, resolved) = self.resolve_all(pending).await?;
         for (_, timings) in &resolved {
             metrics::observe_stages(timings);
         }
         self.check_dims(|i| format!("keyframes[{i}]"), &keyframes)?;
         let count = keyframes.len() as u64;
-        let outcome = self.store.apply(Mutation::Insert(keyframes)).await?;
+        let stored = self.write(Mutation::Insert(keyframes)).await?;
         metrics::KEYFRAMES_INSERTED.inc_by(count);
-        Ok(outcome)
+        Ok(stored)
     }
 
     /// Any other change to the store (erase, resets, pose updates).
-    pub async fn apply(&self, mutation: Mutation) -> Result<MutationOutcome, PipelineError> {
-        Ok(self.store.apply(mutation).await?)
+    pub async fn apply(&self, mutation: Mutation) -> Result<Stored, PipelineError> {
+        self.write(mutation).await
     }
 
     /// Answers a query: waits for the client's turn (a newer query may take

@@ -8,6 +8,8 @@
 //! bytes on disk) are computed when scraped. The exposition is the
 //! `prometheus` crate's text encoder, served over HTTP by axum.
 
+pub mod cluster;
+
 use std::net::SocketAddr;
 use std::sync::LazyLock;
 
@@ -435,6 +437,7 @@ pub fn init() {
     LazyLock::force(&CANDIDATE_SCORE);
     LazyLock::force(&KEYFRAMES);
     LazyLock::force(&STORE_BYTES);
+    cluster::init();
 }
 
 /// Records how the store was opened (it does not change while serving).
