@@ -92,21 +92,24 @@ pub async fn serve(config: Config) -> anyhow::Result<()> {
     } else {
         None
     };
-    let service = PlaceRecognitionService::new(
+    let pipeline = crate::pipeline::Pipeline::new(
         store.clone(),
         config.vpr.clone(),
-        limits,
         perception,
         LatestWins::new(config.query.pending_per_client),
         QueryAdmission::new(
             config.query.concurrent_scans,
             std::time::Duration::from_millis(config.query.max_wait_ms),
         ),
+        replica.clone(),
+    );
+    let service = PlaceRecognitionService::new(
+        pipeline,
+        limits,
         crate::api::service::Policy {
             auth: auth.clone(),
             quotas: crate::quota::Quotas::new(&config.quotas),
         },
-        replica.clone(),
     );
     let max = config.server.max_message_bytes;
     let api = PlaceRecognitionServer::new(service)

@@ -3,12 +3,14 @@
 //! tonic client, as a SLAM system would.
 
 mod harness;
+mod nats;
 mod pki;
 mod scenes;
 
 mod admission;
 mod auth;
 mod cli;
+mod cluster;
 mod detector;
 mod durability;
 mod errors;

@@ -123,8 +123,12 @@ impl ClusterConfig {
         if !self.enabled {
             return Ok(());
         }
-        if self.nats_urls.is_empty() || self.nats_urls.iter().any(|u| u.trim().is_empty()) {
+        if self.nats_urls.is_empty() {
             return Err("cluster.nats_urls must name at least one NATS server".into());
+        }
+        for url in &self.nats_urls {
+            url.parse::<async_nats::ServerAddr>()
+                .map_err(|e| format!("cluster.nats_urls: {url:?} is not a NATS URL: {e}"))?;
         }
         let token = |s: &str| {
             !s.is_empty()
@@ -231,6 +235,13 @@ mod tests {
             (
                 ClusterConfig {
                     nats_urls: vec![],
+                    ..enabled()
+                },
+                "nats_urls",
+            ),
+            (
+                ClusterConfig {
+                    nats_urls: vec!["nats://host:port".into()],
                     ..enabled()
                 },
                 "nats_urls",

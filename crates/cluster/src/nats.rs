@@ -103,11 +103,20 @@ pub(crate) async fn connect(
     observer: Arc<dyn ClusterObserver>,
 ) -> Result<Client, ClusterError> {
     let started = Instant::now();
+    // One address per URL: a comma-joined list is not parsed as several.
+    let servers = config
+        .nats_urls
+        .iter()
+        .map(|url| {
+            url.parse::<async_nats::ServerAddr>()
+                .map_err(|e| ClusterError::Config(format!("cluster.nats_urls: {url:?}: {e}")))
+        })
+        .collect::<Result<Vec<_>, _>>()?;
     let urls = config.nats_urls.join(",");
     loop {
         match options(config, observer.clone())
             .await?
-            .connect(urls.as_str())
+            .connect(servers.clone())
             .await
         {
             Ok(client) => {

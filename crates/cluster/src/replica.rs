@@ -256,8 +256,10 @@ impl Replica {
             return Ok(());
         }
         self.check_halted()?;
+        // Answer before the caller's deadline, with time for the answer
+        // to reach it.
         let wait = within.map_or(self.inner.config.max_read_wait(), |w| {
-            w.min(self.inner.config.max_read_wait())
+            w.mul_f32(0.8).min(self.inner.config.max_read_wait())
         });
         let reached = tokio::time::timeout(wait, applied.wait_for(|&a| a >= sequence)).await;
         match reached {

@@ -146,6 +146,8 @@ pub struct Index {
     /// Row of each row's predecessor in its track, or [`NO_ROW`]; a table
     /// of its own because the scan follows it for every row.
     preds: Vec<u32>,
+    /// Each row's null-sample tag (a hash of its key), row-aligned.
+    tags: Vec<u32>,
     interner: Interner,
     by_key: HashMap<KeyframeKey, usize>,
     /// Keyframe id → row, per map: the temporal tracks.
@@ -163,6 +165,7 @@ impl Index {
             rows: Vec::new(),
             ids: Vec::new(),
             preds: Vec::new(),
+            tags: Vec::new(),
             interner: Interner::default(),
             by_key: HashMap::new(),
             tracks: HashMap::new(),
@@ -324,6 +327,8 @@ impl Index {
     fn attach(&mut self, row: usize, keyframe: SemanticKeyframe) {
         debug_assert_eq!(row, self.rows.len());
         self.preds.push(NO_ROW);
+        self.tags
+            .push(crate::vpr::calibration::sample_tag(&keyframe.key));
         self.appearance.push(&keyframe.features.appearance);
         for text in distinct_texts(&keyframe.features.objects) {
             *self.text_df.entry(text).or_insert(0) += 1;
@@ -373,6 +378,7 @@ impl Index {
         self.rows.swap_remove(row);
         self.ids.swap_remove(row);
         self.preds.swap_remove(row);
+        self.tags.swap_remove(row);
         if row != last {
             let moved = &self.rows[row];
             self.by_key.insert(moved.key.clone(), row);
@@ -503,6 +509,10 @@ impl KeyframeMemory for Index {
 
     fn keyframe_count(&self) -> u32 {
         u32::try_from(self.rows.len()).unwrap_or(u32::MAX)
+    }
+
+    fn sample_tag(&self, row: usize) -> u32 {
+        self.tags[row]
     }
 }
 

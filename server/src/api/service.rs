@@ -12,15 +12,11 @@ use tonic::{Request, Response, Status};
 use super::convert;
 use super::validate::{self, InvalidField, Limits, Observation};
 use crate::auth::Authenticator;
-use crate::pipeline::admission::QueryAdmission;
-use crate::pipeline::latest_wins::LatestWins;
 use crate::pipeline::{Pipeline, QueryAnswer};
 use crate::proto;
 use crate::proto::place_recognition_server::PlaceRecognition;
 use crate::quota::Quotas;
-use humem_core::vpr::VprParams;
-use humem_perception::Perception;
-use humem_store::{MapKey, Mutation, Store};
+use humem_store::{MapKey, Mutation};
 
 /// What limits callers: who they are and what they may do ([`auth`]), and
 /// how much ([`quota`]).
@@ -44,19 +40,10 @@ pub struct PlaceRecognitionService {
 }
 
 impl PlaceRecognitionService {
-    /// The service over these parts.
-    pub fn new(
-        store: Store,
-        params: VprParams,
-        limits: Limits,
-        perception: Option<Perception>,
-        scheduler: Arc<LatestWins>,
-        admission: Arc<QueryAdmission>,
-        policy: Policy,
-        replica: Option<humem_cluster::Replica>,
-    ) -> Self {
+    /// The service over a pipeline, with its request limits and policy.
+    pub fn new(pipeline: Pipeline, limits: Limits, policy: Policy) -> Self {
         PlaceRecognitionService {
-            pipeline: Pipeline::new(store, params, perception, scheduler, admission, replica),
+            pipeline,
             limits,
             auth: policy.auth,
             quotas: Arc::new(policy.quotas),

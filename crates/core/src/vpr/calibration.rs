@@ -30,6 +30,7 @@
 //! known and every calibrated score is 0: nothing can be shown to stand out
 //! of a store that small.
 
+use crate::keyframe::KeyframeKey;
 use crate::vpr::clip01;
 use crate::vpr::params::VprParams;
 
@@ -39,6 +40,29 @@ use crate::vpr::params::VprParams;
 /// is kept small: the median of 2048 scores is within 0.03 standard
 /// deviations of the store's, and every dev data set's store is smaller.
 pub const NULL_SAMPLE_CAP: usize = 2048;
+
+/// A keyframe's sample tag: a hash of its key (FNV-1a, then a finaliser
+/// that spreads every bit into the low ones), the same in every process
+/// and build, so that the null's sample does not depend on row order.
+pub fn sample_tag(key: &KeyframeKey) -> u32 {
+    let mut h: u64 = 0xcbf2_9ce4_8422_2325;
+    let id = key.keyframe_id.to_le_bytes();
+    let bytes = key
+        .robot_id
+        .as_bytes()
+        .iter()
+        .chain(&[0xff])
+        .chain(key.session_id.as_bytes())
+        .chain(&[0xff])
+        .chain(&id);
+    for &b in bytes {
+        h = (h ^ u64::from(b)).wrapping_mul(0x0000_0100_0000_01b3);
+    }
+    h ^= h >> 33;
+    h = h.wrapping_mul(0xff51_afd7_ed55_8ccd);
+    h ^= h >> 33;
+    (h ^ (h >> 32)) as u32
+}
 
 /// What a query scores on the eligible store.
 #[derive(Debug, Clone, Copy, PartialEq, Default)]
@@ -50,19 +74,32 @@ pub struct NullModel {
 }
 
 impl NullModel {
-    /// The null of `scores` (the `S_s` of every eligible keyframe). The
-    /// median of an even count is the upper of the two middle values; more
-    /// than [`NULL_SAMPLE_CAP`] scores are sampled at an even stride first.
-    pub fn estimate(scores: impl ExactSizeIterator<Item = f32>) -> NullModel {
+    /// The null of `scores`: `(S_s, sample tag)` of every eligible
+    /// keyframe. The median of an even count is the upper of the two middle
+    /// values; of more than [`NULL_SAMPLE_CAP`] scores, those whose tag
+    /// [`NullModel::sampled`] keeps are taken.
+    pub fn estimate(scores: impl ExactSizeIterator<Item = (f32, u32)>) -> NullModel {
         let samples = scores.len();
-        let sample: Vec<f32> = scores.step_by(Self::stride(samples)).collect();
+        let stride = Self::stride(samples);
+        let sample: Vec<f32> = scores
+            .filter(|&(_, tag)| Self::sampled(tag, stride))
+            .map(|(score, _)| score)
+            .collect();
         Self::from_sample(sample, samples)
     }
 
     /// The sampling stride for `samples` scores: every score up to
-    /// [`NULL_SAMPLE_CAP`], then every `stride`-th from the first.
+    /// [`NULL_SAMPLE_CAP`], then about one in `stride`.
     pub fn stride(samples: usize) -> usize {
         samples.div_ceil(NULL_SAMPLE_CAP).max(1)
+    }
+
+    /// Whether the keyframe with sample tag `tag` ([`sample_tag`]) is in
+    /// the sample at `stride`. Chosen by the keyframe's key, not by its row,
+    /// so that replicas and restarts, whose rows are in other orders, take
+    /// the same sample and give the same scores.
+    pub fn sampled(tag: u32, stride: usize) -> bool {
+        stride <= 1 || (tag as usize).is_multiple_of(stride)
     }
 
     /// The null of a sample already taken at [`NullModel::stride`] from
@@ -101,10 +138,20 @@ mod tests {
         }
     }
 
+    /// Scores tagged 0, 1, 2, … (as rows of a memory without keys).
+    fn tagged(
+        scores: impl IntoIterator<Item = f32, IntoIter: ExactSizeIterator>,
+    ) -> impl ExactSizeIterator<Item = (f32, u32)> {
+        scores.into_iter().enumerate().map(|(i, s)| (s, i as u32))
+    }
+
+    /// `sample_tag` of (car1, s, 7), computed independently in Python.
+    const PINNED: u32 = 2_217_906_302;
+
     #[test]
     fn median_and_calibration_by_hand() {
         // Sorted 0.5, 0.6, 0.7, 0.8, 0.9: median 0.7.
-        let null = NullModel::estimate([0.9, 0.5, 0.7, 0.6, 0.8].into_iter());
+        let null = NullModel::estimate(tagged([0.9, 0.5, 0.7, 0.6, 0.8]));
         assert_eq!(
             null,
             NullModel {
@@ -120,20 +167,17 @@ mod tests {
         assert_eq!(null.calibrate(0.6, &p), 0.0);
         assert!(close(null.calibrate(1.0, &p), 1.0));
         // Even count: the upper middle value (0.6 of 0.5, 0.6).
-        let even = NullModel::estimate([0.6, 0.5].into_iter());
+        let even = NullModel::estimate(tagged([0.6, 0.5]));
         assert_eq!(even.location, 0.6);
     }
 
     #[test]
     fn too_few_samples_or_degenerate_null_give_zero() {
-        let null = NullModel::estimate([0.2, 0.3, 0.4].into_iter());
+        let null = NullModel::estimate(tagged([0.2, 0.3, 0.4]));
         assert_eq!(null.calibrate(0.9, &params(4)), 0.0);
         assert!(close(null.calibrate(0.9, &params(3)), (0.9 - 0.3) / 0.7));
-        assert_eq!(
-            NullModel::estimate(std::iter::empty()),
-            NullModel::default()
-        );
-        let all_ones = NullModel::estimate([1.0; 20].into_iter());
+        assert_eq!(NullModel::estimate(tagged([])), NullModel::default());
+        let all_ones = NullModel::estimate(tagged([1.0; 20]));
         assert_eq!(all_ones.calibrate(1.0, &params(1)), 0.0);
     }
 
@@ -142,10 +186,49 @@ mod tests {
         // 20 000 scores, stride 3: every third of 0, 1, 2, ... (as i / 20 000)
         // gives 6 667 values with median index 3 333, value 9 999 / 20 000.
         let n = 20_000;
-        let null = NullModel::estimate((0..n).map(|i| i as f32 / n as f32));
+        let null = NullModel::estimate(tagged((0..n).map(|i| i as f32 / n as f32)));
         assert_eq!(null.samples, n);
-        // Stride 10: every tenth score, 2000 of them; the middle is 10 000.
+        // Stride 10, tags 0, 1, 2, …: every tenth score, 2000 of them; the
+        // middle is 10 000.
         assert!(close(null.location, 10_000.0 / 20_000.0));
+    }
+
+    #[test]
+    fn the_sample_follows_the_keys_not_the_row_order() {
+        let n = 20_000u32;
+        let scores: Vec<(f32, u32)> = (0..n)
+            .map(|i| {
+                let key = KeyframeKey {
+                    robot_id: "r".into(),
+                    session_id: "s".into(),
+                    keyframe_id: u64::from(i),
+                };
+                ((i as f32 * 0.618).fract(), sample_tag(&key))
+            })
+            .collect();
+        let forward = NullModel::estimate(scores.iter().copied());
+        let backward = NullModel::estimate(scores.iter().rev().copied());
+        assert_eq!(forward, backward);
+        // About one in ten keys is sampled.
+        let kept = scores
+            .iter()
+            .filter(|(_, t)| NullModel::sampled(*t, 10))
+            .count();
+        assert!((1800..2200).contains(&kept), "{kept}");
+    }
+
+    #[test]
+    fn sample_tags_are_pinned() {
+        // The same in every build and process: replicas must agree.
+        let key = |robot: &str, id| KeyframeKey {
+            robot_id: robot.into(),
+            session_id: "s".into(),
+            keyframe_id: id,
+        };
+        assert_eq!(sample_tag(&key("car1", 7)), sample_tag(&key("car1", 7)));
+        assert_ne!(sample_tag(&key("car1", 7)), sample_tag(&key("car1", 8)));
+        assert_ne!(sample_tag(&key("car1", 7)), sample_tag(&key("car2", 7)));
+        assert_eq!(sample_tag(&key("car1", 7)), PINNED);
     }
 
     proptest! {
@@ -158,8 +241,8 @@ mod tests {
             // A descriptor that puts everything at a s + (1 − a) gives the same c_s.
             let p = params(10);
             let map = |x: f32| a * x + (1.0 - a);
-            let c = NullModel::estimate(scores.iter().copied()).calibrate(s, &p);
-            let c_mapped = NullModel::estimate(scores.iter().map(|&x| map(x))).calibrate(map(s), &p);
+            let c = NullModel::estimate(tagged(scores.iter().copied())).calibrate(s, &p);
+            let c_mapped = NullModel::estimate(tagged(scores.iter().map(|&x| map(x)))).calibrate(map(s), &p);
             prop_assert!((c - c_mapped).abs() < 1e-3, "{} vs {}", c, c_mapped);
             prop_assert!((0.0..=1.0).contains(&c));
         }
@@ -170,7 +253,7 @@ mod tests {
             s0 in 0.0f32..1.0,
             s1 in 0.0f32..1.0,
         ) {
-            let null = NullModel::estimate(scores.into_iter());
+            let null = NullModel::estimate(tagged(scores));
             let (lo, hi) = if s0 <= s1 { (s0, s1) } else { (s1, s0) };
             prop_assert!(null.calibrate(hi, &params(10)) >= null.calibrate(lo, &params(10)));
         }

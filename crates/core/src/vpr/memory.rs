@@ -30,6 +30,12 @@ pub trait KeyframeMemory: Sync {
     fn text_document_frequency(&self, normalized: &str) -> u32;
     /// Number of stored keyframes.
     fn keyframe_count(&self) -> u32;
+    /// The row's sample tag for the null model
+    /// ([`crate::vpr::calibration::sample_tag`] of its key); by default the
+    /// row itself, for memories without keys.
+    fn sample_tag(&self, row: usize) -> u32 {
+        row as u32
+    }
 }
 
 /// A plain `Vec`-backed [`KeyframeMemory`] for tests and benchmarks.

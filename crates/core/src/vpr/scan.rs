@@ -286,7 +286,7 @@ where
             })
         })
         .collect();
-    let null = NullModel::estimate(hits.iter().map(|h| h.score));
+    let null = NullModel::estimate(hits.iter().map(|h| (h.score, memory.sample_tag(h.row))));
     let eligible = hits.len();
     top_k(&mut hits, params.top_k);
     ScalScan {
@@ -386,34 +386,15 @@ where
         .collect();
     top_k(&mut hits, k);
 
-    // The null model's sample: every stride-th eligible row, scored exactly.
+    // The null model's sample: the eligible rows whose key's tag the
+    // stride keeps (the same rows whatever their order), scored exactly.
     let stride = NullModel::stride(eligible_count);
-    // Each block's first eligible ordinal.
-    let offsets: Vec<usize> = counts
-        .iter()
-        .scan(0, |next, n| {
-            let first = *next;
-            *next += n;
-            Some(first)
-        })
-        .collect();
     let sample_rows: Vec<usize> = loose
-        .par_chunks(BLOCK)
-        .zip(offsets)
+        .par_iter()
         .enumerate()
-        .flat_map_iter(|(b, (block, first))| {
-            let mut ordinal = first;
-            let mut rows = Vec::new();
-            for (i, u) in block.iter().enumerate() {
-                if !u.is_nan() {
-                    if ordinal % stride == 0 {
-                        rows.push(b * BLOCK + i);
-                    }
-                    ordinal += 1;
-                }
-            }
-            rows.into_iter()
-        })
+        .with_min_len(BLOCK)
+        .filter(|&(row, u)| !u.is_nan() && NullModel::sampled(memory.sample_tag(row), stride))
+        .map(|(row, _)| row)
         .collect();
     let location = sample_median(params, side, memory, &codes, kernel, &sample_rows);
     ScalScan {

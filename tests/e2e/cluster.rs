@@ -1,0 +1,339 @@
+//! Cluster mode end to end: real `nats-server` processes clustered on
+//! loopback, several `humem serve` replicas on one stream. A write through
+//! any replica reaches all of them; nothing acknowledged is lost when a
+//! NATS node and a replica die while writes go on; replicas answer alike;
+//! bad input never enters the log.
+
+use std::collections::BTreeSet;
+use std::sync::atomic::{AtomicBool, Ordering};
+use std::sync::Arc;
+use std::time::{Duration, Instant};
+
+use humem_server::proto;
+use tonic::Code;
+
+use crate::harness::Server;
+use crate::nats::{self, NatsCluster};
+use crate::scenes::{self, World};
+
+/// Starts a replica on `dir` joined to `nats`'s stream (3 copies).
+fn replica(nats: &NatsCluster, dir: &std::path::Path, name: &str) -> Server {
+    let settings = [
+        "HUMEM_CLUSTER__ENABLED=true".to_string(),
+        format!("HUMEM_CLUSTER__NATS_URLS={}", nats.urls_setting()),
+        "HUMEM_CLUSTER__STREAM_REPLICAS=3".to_string(),
+        format!("HUMEM_CLUSTER__REPLICA_NAME={name}"),
+    ];
+    let settings: Vec<&str> = settings.iter().map(String::as_str).collect();
+    Server::start_with(dir, &settings)
+}
+
+async fn stats(server: &Server) -> proto::StatsResponse {
+    server
+        .client()
+        .await
+        .stats(proto::StatsRequest {})
+        .await
+        .unwrap()
+        .into_inner()
+}
+
+/// Waits until `server` has applied the log up to `position`.
+async fn wait_for_position(server: &Server, position: u64, within: Duration) -> Duration {
+    let started = Instant::now();
+    while stats(server).await.log_position < position {
+        assert!(
+            started.elapsed() < within,
+            "replica stuck at {} < {position}",
+            stats(server).await.log_position
+        );
+        tokio::time::sleep(Duration::from_millis(5)).await;
+    }
+    started.elapsed()
+}
+
+/// A query's answer reduced to what must agree across replicas.
+fn answer(reply: &proto::QueryResponse) -> Vec<(String, u64, u32, u32)> {
+    reply
+        .candidates
+        .iter()
+        .map(|c| {
+            (
+                c.robot_id.clone(),
+                c.keyframe_id,
+                c.score.to_bits(),
+                c.evidence.as_ref().map_or(0, |e| e.raw_score.to_bits()),
+            )
+        })
+        .collect()
+}
+
+async fn ask(
+    server: &Server,
+    robot: &str,
+    keyframe: u64,
+    at: u64,
+) -> Result<proto::QueryResponse, tonic::Status> {
+    let mut request = scenes::query_stored(robot, "s", keyframe);
+    request.min_log_sequence = Some(at);
+    request.threshold = Some(0.0);
+    request.top_n = Some(5);
+    request.min_frame_gap = Some(0);
+    server
+        .client()
+        .await
+        .query(request)
+        .await
+        .map(tonic::Response::into_inner)
+}
+
+#[tokio::test(flavor = "multi_thread")]
+async fn writes_through_any_replica_reach_every_replica() {
+    if !nats::available() {
+        return;
+    }
+    let nats = NatsCluster::start(3);
+    let dirs: Vec<_> = (0..3).map(|_| tempfile::tempdir().unwrap()).collect();
+    let replicas: Vec<Server> = dirs
+        .iter()
+        .zip(["a", "b", "c"])
+        .map(|(dir, name)| replica(&nats, dir.path(), name))
+        .collect();
+    let mut world = World::new(40, 11);
+    let drive = scenes::loop_drive(&mut world, "r", "s", 0, 40, 20);
+
+    // One keyframe at a time, through each replica in turn: the log
+    // positions rise by one per write, whichever replica took it.
+    let mut last = 0;
+    for (k, (kf, _)) in drive.iter().enumerate() {
+        let reply = replicas[k % 3]
+            .client()
+            .await
+            .insert(proto::InsertRequest {
+                keyframe: Some(kf.clone()),
+            })
+            .await
+            .unwrap()
+            .into_inner();
+        assert_eq!(reply.log_sequence, last + 1, "keyframe {k}");
+        last = reply.log_sequence;
+    }
+    // Read-your-writes on a replica that did not take the write: the query
+    // waits for it, however far behind the replica is.
+    let newest = scenes::id(&drive.last().unwrap().0);
+    let mut answers = Vec::new();
+    for server in &replicas {
+        let reply = ask(server, "r", newest, last).await.unwrap();
+        assert!(!reply.candidates.is_empty());
+        answers.push(answer(&reply));
+    }
+    assert_eq!(answers[0], answers[1], "replicas a and b answer alike");
+    assert_eq!(answers[0], answers[2], "replicas a and c answer alike");
+    for server in &replicas {
+        let stats = stats(server).await;
+        assert_eq!(stats.keyframes, drive.len() as u64);
+        assert_eq!(stats.log_position, last);
+    }
+
+    // A write through one replica is applied on the others within a
+    // bounded lag.
+    let (kf, _) = &drive[0];
+    let mut moved = kf.clone();
+    moved.keyframe_id = Some(1000);
+    let reply = replicas[2]
+        .client()
+        .await
+        .insert(proto::InsertRequest {
+            keyframe: Some(moved),
+        })
+        .await
+        .unwrap()
+        .into_inner();
+    for server in &replicas[..2] {
+        let lag = wait_for_position(server, reply.log_sequence, Duration::from_secs(5)).await;
+        eprintln!("applied on another replica {lag:?} after the acknowledgement");
+    }
+    last = reply.log_sequence;
+
+    // Bad input is refused before anything is published: the next valid
+    // write takes the very next position.
+    let mut nameless = kf.clone();
+    nameless.robot_id.clear();
+    let mut short = kf.clone();
+    if let Some(proto::keyframe::Content::Features(f)) = &mut short.content {
+        f.global_descriptor.truncate(3);
+    }
+    for bad in [nameless, short] {
+        let status = replicas[1]
+            .client()
+            .await
+            .insert(proto::InsertRequest {
+                keyframe: Some(bad),
+            })
+            .await
+            .unwrap_err();
+        assert_eq!(status.code(), Code::InvalidArgument, "{status:?}");
+    }
+    let reply = replicas[1]
+        .client()
+        .await
+        .erase(proto::EraseRequest {
+            robot_id: "r".into(),
+            session_id: "s".into(),
+            keyframe_ids: vec![1000],
+        })
+        .await
+        .unwrap()
+        .into_inner();
+    assert_eq!(reply.erased, 1);
+    assert_eq!(
+        reply.log_sequence,
+        last + 1,
+        "nothing invalid entered the log"
+    );
+
+    // A position no replica has reached: UNAVAILABLE within the deadline.
+    let mut request = scenes::query_stored("r", "s", newest);
+    request.min_log_sequence = Some(1_000_000);
+    let mut request = tonic::Request::new(request);
+    request.set_timeout(Duration::from_millis(300));
+    let status = replicas[0].client().await.query(request).await.unwrap_err();
+    assert_eq!(status.code(), Code::Unavailable, "{status:?}");
+    assert!(status.message().contains("1000000"), "{status:?}");
+}
+
+/// What one writer got acknowledged.
+#[derive(Default)]
+struct Acked {
+    keyframes: Vec<u64>,
+    positions: Vec<u64>,
+    failures: usize,
+    /// The longest time without an acknowledgement, failures included.
+    longest_gap: Duration,
+}
+
+#[tokio::test(flavor = "multi_thread")]
+async fn no_acknowledged_write_is_lost_when_a_nats_node_and_a_replica_die() {
+    if !nats::available() {
+        return;
+    }
+    let mut nats = NatsCluster::start(3);
+    let dir_a = tempfile::tempdir().unwrap();
+    let dir_b = tempfile::tempdir().unwrap();
+    let a = replica(&nats, dir_a.path(), "a");
+    let b = replica(&nats, dir_b.path(), "b");
+    let urls = Arc::new(parking_lot::Mutex::new(vec![a.url.clone(), b.url.clone()]));
+    let stop = Arc::new(AtomicBool::new(false));
+    let mut world = World::new(50, 5);
+
+    // Four robots write one keyframe at a time (about 20 a second each),
+    // two through each replica;
+    // a writer whose replica fails moves to the other, as a client behind
+    // a load balancer would.
+    let mut writers = Vec::new();
+    for w in 0..4usize {
+        let views: Vec<_> = (0..2000)
+            .map(|k| scenes::features(world.view(k % 50, 0.3), 0, vec![]))
+            .collect();
+        let urls = urls.clone();
+        let stop = stop.clone();
+        writers.push(tokio::spawn(async move {
+            let robot = format!("w{w}");
+            let mut acked = Acked::default();
+            let mut target = w % 2;
+            let mut last_ack = Instant::now();
+            for (k, features) in views.into_iter().enumerate() {
+                if stop.load(Ordering::Relaxed) {
+                    break;
+                }
+                let url = urls.lock()[target].clone();
+                let kf = scenes::keyframe(&robot, "s", [k as u64, 3 * k as u64, 0], features);
+                let sent = async {
+                    let mut client =
+                        humem_server::proto::place_recognition_client::PlaceRecognitionClient::connect(url)
+                            .await
+                            .map_err(|e| tonic::Status::unavailable(e.to_string()))?;
+                    client
+                        .insert(proto::InsertRequest { keyframe: Some(kf) })
+                        .await
+                };
+                match tokio::time::timeout(Duration::from_secs(15), sent).await {
+                    Ok(Ok(reply)) => {
+                        acked.keyframes.push(k as u64);
+                        acked.positions.push(reply.into_inner().log_sequence);
+                        acked.longest_gap = acked.longest_gap.max(last_ack.elapsed());
+                        last_ack = Instant::now();
+                        // About 20 writes a second per robot.
+                        tokio::time::sleep(Duration::from_millis(40)).await;
+                    }
+                    _ => {
+                        acked.failures += 1;
+                        target = 1 - target;
+                        tokio::time::sleep(Duration::from_millis(50)).await;
+                    }
+                }
+            }
+            acked
+        }));
+    }
+
+    tokio::time::sleep(Duration::from_millis(1500)).await;
+    nats.kill_node(0);
+    b.kill();
+    tokio::time::sleep(Duration::from_millis(2500)).await;
+    let b = replica(&nats, dir_b.path(), "b");
+    urls.lock()[1] = b.url.clone();
+    nats.start_node(0);
+    tokio::time::sleep(Duration::from_millis(2000)).await;
+    stop.store(true, Ordering::Relaxed);
+
+    let mut acked = Vec::new();
+    for writer in writers {
+        acked.push(writer.await.unwrap());
+    }
+    let newest = acked
+        .iter()
+        .flat_map(|a| a.positions.iter().copied())
+        .max()
+        .unwrap();
+    for server in [&a, &b] {
+        wait_for_position(server, newest, Duration::from_secs(30)).await;
+    }
+    let (sa, sb) = (stats(&a).await, stats(&b).await);
+    assert_eq!(sa.keyframes, sb.keyframes);
+    assert_eq!(sa.maps, sb.maps);
+    let mut lost = 0;
+    let mut checked = 0;
+    for (w, writer) in acked.iter().enumerate() {
+        let robot = format!("w{w}");
+        let distinct: BTreeSet<_> = writer.keyframes.iter().collect();
+        assert!(
+            distinct.len() > 5,
+            "writer {w} got {} acknowledgements",
+            distinct.len()
+        );
+        for &k in &distinct {
+            for server in [&a, &b] {
+                match ask(server, &robot, *k, newest).await {
+                    Ok(_) => checked += 1,
+                    Err(status) if status.code() == Code::NotFound => lost += 1,
+                    Err(status) => panic!("{status:?}"),
+                }
+            }
+        }
+        // The same answers on both replicas.
+        for &k in distinct.iter().step_by(7) {
+            let on_a = answer(&ask(&a, &robot, *k, newest).await.unwrap());
+            let on_b = answer(&ask(&b, &robot, *k, newest).await.unwrap());
+            assert_eq!(on_a, on_b, "robot {robot} keyframe {k}");
+        }
+    }
+    eprintln!(
+        "acknowledged {} writes ({} lookups on 2 replicas), {} failed attempts, longest wait for an acknowledgement {:?}, lost {lost}",
+        acked.iter().map(|a| a.keyframes.len()).sum::<usize>(),
+        checked,
+        acked.iter().map(|a| a.failures).sum::<usize>(),
+        acked.iter().map(|a| a.longest_gap).max().unwrap(),
+    );
+    assert_eq!(lost, 0, "acknowledged writes lost");
+}

@@ -1,0 +1,132 @@
+//! Real `nats-server` processes for the cluster tests: a JetStream cluster
+//! of N nodes on free loopback ports, each with its own store directory,
+//! that a test can kill and start again. Tests skip, saying why, where
+//! `nats-server` is not installed (`scripts/setup-system.sh test` installs
+//! it).
+
+use std::net::TcpListener;
+use std::path::PathBuf;
+use std::process::{Child, Command, Stdio};
+use std::time::{Duration, Instant};
+
+/// Whether `nats-server` can be run; prints why not.
+pub fn available() -> bool {
+    let found = Command::new("nats-server")
+        .arg("--version")
+        .stdout(Stdio::null())
+        .stderr(Stdio::null())
+        .status()
+        .is_ok_and(|s| s.success());
+    if !found {
+        eprintln!(
+            "skipped: nats-server is not installed (scripts/setup-system.sh test installs it)"
+        );
+    }
+    found
+}
+
+fn free_port() -> u16 {
+    TcpListener::bind("127.0.0.1:0")
+        .unwrap()
+        .local_addr()
+        .unwrap()
+        .port()
+}
+
+/// One node: its ports, its store and its process.
+struct Node {
+    name: String,
+    client_port: u16,
+    route_port: u16,
+    store: PathBuf,
+    child: Option<Child>,
+}
+
+/// A JetStream cluster on loopback.
+pub struct NatsCluster {
+    nodes: Vec<Node>,
+    _dir: tempfile::TempDir,
+}
+
+impl NatsCluster {
+    /// Starts `n` nodes clustered with each other and waits until each
+    /// accepts clients (JetStream elects its leader after; HuMem retries).
+    pub fn start(n: usize) -> NatsCluster {
+        let dir = tempfile::tempdir().unwrap();
+        let nodes = (0..n)
+            .map(|i| Node {
+                name: format!("n{i}"),
+                client_port: free_port(),
+                route_port: free_port(),
+                store: dir.path().join(format!("n{i}")),
+                child: None,
+            })
+            .collect();
+        let mut cluster = NatsCluster { nodes, _dir: dir };
+        for i in 0..n {
+            cluster.start_node(i);
+        }
+        cluster
+    }
+
+    /// Starts node `i` (again), with its store as it was.
+    pub fn start_node(&mut self, i: usize) {
+        let routes: Vec<String> = self
+            .nodes
+            .iter()
+            .map(|n| format!("nats://127.0.0.1:{}", n.route_port))
+            .collect();
+        let node = &mut self.nodes[i];
+        let mut command = Command::new("nats-server");
+        command
+            .args(["-a", "127.0.0.1", "-p"])
+            .arg(node.client_port.to_string())
+            .args(["-n", &node.name, "-js", "-sd"])
+            .arg(&node.store)
+            .stdout(Stdio::null())
+            .stderr(Stdio::null());
+        if routes.len() > 1 {
+            command
+                .args(["--cluster_name", "humem-test", "--cluster"])
+                .arg(format!("nats://127.0.0.1:{}", node.route_port))
+                .args(["--routes", &routes.join(",")]);
+        }
+        node.child = Some(command.spawn().expect("starting nats-server"));
+        let deadline = Instant::now() + Duration::from_secs(10);
+        while std::net::TcpStream::connect(("127.0.0.1", node.client_port)).is_err() {
+            assert!(
+                Instant::now() < deadline,
+                "nats-server {} did not start",
+                node.name
+            );
+            std::thread::sleep(Duration::from_millis(50));
+        }
+    }
+
+    /// SIGKILL on node `i`.
+    pub fn kill_node(&mut self, i: usize) {
+        if let Some(mut child) = self.nodes[i].child.take() {
+            child.kill().unwrap();
+            child.wait().unwrap();
+        }
+    }
+
+    /// The client URLs of every node, as `cluster.nats_urls` takes them
+    /// from the environment.
+    pub fn urls_setting(&self) -> String {
+        let urls: Vec<String> = self
+            .nodes
+            .iter()
+            .map(|n| format!("\"nats://127.0.0.1:{}\"", n.client_port))
+            .collect();
+        format!("[{}]", urls.join(","))
+    }
+}
+
+impl Drop for NatsCluster {
+    fn drop(&mut self) {
+        for i in 0..self.nodes.len() {
+            self.kill_node(i);
+        }
+    }
+}
