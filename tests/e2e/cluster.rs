@@ -337,3 +337,119 @@ async fn no_acknowledged_write_is_lost_when_a_nats_node_and_a_replica_die() {
     );
     assert_eq!(lost, 0, "acknowledged writes lost");
 }
+
+/// Runs `humem serve` with `settings` until it exits (it must, within 30 s)
+/// and returns its exit status and what it printed on stderr.
+fn serve_until_exit(dir: &std::path::Path, settings: &[String]) -> (bool, String) {
+    let mut command = std::process::Command::new(env!("CARGO_BIN_EXE_humem"));
+    command
+        .args(["serve", "--listen", "127.0.0.1:0", "--data-dir"])
+        .arg(dir)
+        .env("HUMEM_PERCEPTION__ENABLED", "false")
+        .env("HUMEM_METRICS__ENABLED", "false")
+        .env("RUST_LOG", "error")
+        .env("RUST_BACKTRACE", "0")
+        .env_remove("HUMEM_CONFIG")
+        .stdout(std::process::Stdio::null())
+        .stderr(std::process::Stdio::piped());
+    for setting in settings {
+        let (key, value) = setting.split_once('=').unwrap();
+        command.env(key, value);
+    }
+    let mut child = command.spawn().unwrap();
+    let deadline = Instant::now() + Duration::from_secs(30);
+    let status = loop {
+        if let Some(status) = child.try_wait().unwrap() {
+            break status;
+        }
+        if Instant::now() > deadline {
+            child.kill().unwrap();
+            let mut stderr = String::new();
+            std::io::Read::read_to_string(&mut child.stderr.take().unwrap(), &mut stderr).unwrap();
+            panic!("humem serve did not stop within 30 s: {stderr}");
+        }
+        std::thread::sleep(Duration::from_millis(50));
+    };
+    let mut stderr = String::new();
+    std::io::Read::read_to_string(&mut child.stderr.take().unwrap(), &mut stderr).unwrap();
+    (status.success(), stderr)
+}
+
+#[tokio::test(flavor = "multi_thread")]
+async fn nats_connections_use_tls_and_credentials() {
+    if !nats::available() {
+        return;
+    }
+    let pki = tempfile::tempdir().unwrap();
+    let ca = crate::pki::Authority::new("nats test CA");
+    let ca_file = ca.write_ca(pki.path(), "ca");
+    let (cert, key) = ca.issue(pki.path(), "nats", &["localhost"]);
+    let password = pki.path().join("password");
+    std::fs::write(&password, "correct horse\n").unwrap();
+    let config = format!(
+        "tls {{\n  cert_file: {cert:?}\n  key_file: {key:?}\n}}\nauthorization {{\n  users = [ {{ user: humem, password: \"correct horse\" }} ]\n}}\n"
+    );
+    let nats = NatsCluster::start_with(1, Some(&config));
+    let urls = nats.urls_setting_as("tls", "localhost");
+    let base = |password_file: &std::path::Path| {
+        vec![
+            "HUMEM_CLUSTER__ENABLED=true".to_string(),
+            format!("HUMEM_CLUSTER__NATS_URLS={urls}"),
+            "HUMEM_CLUSTER__STREAM_REPLICAS=1".to_string(),
+            format!("HUMEM_CLUSTER__TLS__CA={}", ca_file.display()),
+            "HUMEM_CLUSTER__AUTH__USER=humem".to_string(),
+            format!(
+                "HUMEM_CLUSTER__AUTH__PASSWORD_FILE={}",
+                password_file.display()
+            ),
+        ]
+    };
+
+    // The right CA and password: writes go through the log.
+    let dir = tempfile::tempdir().unwrap();
+    let settings = base(&password);
+    let settings: Vec<&str> = settings.iter().map(String::as_str).collect();
+    let server = Server::start_with(dir.path(), &settings);
+    let mut world = World::new(4, 3);
+    let kf = scenes::keyframe(
+        "r",
+        "s",
+        [1, 3, 0],
+        scenes::features(world.view(0, 0.1), 0, vec![]),
+    );
+    let reply = server
+        .client()
+        .await
+        .insert(proto::InsertRequest { keyframe: Some(kf) })
+        .await
+        .unwrap()
+        .into_inner();
+    assert_eq!(reply.log_sequence, 1);
+    drop(server);
+
+    // A wrong password is refused at once, with the reason.
+    let wrong = pki.path().join("wrong");
+    std::fs::write(&wrong, "battery staple").unwrap();
+    let (ok, stderr) = serve_until_exit(tempfile::tempdir().unwrap().path(), &base(&wrong));
+    assert!(!ok);
+    assert!(stderr.contains("cluster.auth"), "{stderr}");
+
+    // Without the CA, the server's certificate is not trusted.
+    let mut untrusting = base(&password);
+    untrusting.retain(|s| !s.starts_with("HUMEM_CLUSTER__TLS__CA"));
+    untrusting.push("HUMEM_CLUSTER__TLS__CA=/dev/null".into());
+    let (ok, stderr) = serve_until_exit(tempfile::tempdir().unwrap().path(), &untrusting);
+    assert!(!ok);
+    assert!(stderr.contains("NATS"), "{stderr}");
+
+    // NATS elsewhere without TLS or credentials: refused before connecting.
+    let (ok, stderr) = serve_until_exit(
+        tempfile::tempdir().unwrap().path(),
+        &[
+            "HUMEM_CLUSTER__ENABLED=true".to_string(),
+            "HUMEM_CLUSTER__NATS_URLS=[\"nats://10.255.0.1:4222\"]".to_string(),
+        ],
+    );
+    assert!(!ok);
+    assert!(stderr.contains("refusing to reach NATS"), "{stderr}");
+}

@@ -45,6 +45,8 @@ struct Node {
 /// A JetStream cluster on loopback.
 pub struct NatsCluster {
     nodes: Vec<Node>,
+    /// A configuration file every node reads (TLS, users), if any.
+    config: Option<PathBuf>,
     _dir: tempfile::TempDir,
 }
 
@@ -52,7 +54,18 @@ impl NatsCluster {
     /// Starts `n` nodes clustered with each other and waits until each
     /// accepts clients (JetStream elects its leader after; HuMem retries).
     pub fn start(n: usize) -> NatsCluster {
+        Self::start_with(n, None)
+    }
+
+    /// Starts `n` nodes that also read `config` (nats-server's own format),
+    /// e.g. a `tls` block and users; the ports and the store come from flags.
+    pub fn start_with(n: usize, config: Option<&str>) -> NatsCluster {
         let dir = tempfile::tempdir().unwrap();
+        let config = config.map(|text| {
+            let path = dir.path().join("nats.conf");
+            std::fs::write(&path, text).unwrap();
+            path
+        });
         let nodes = (0..n)
             .map(|i| Node {
                 name: format!("n{i}"),
@@ -62,7 +75,11 @@ impl NatsCluster {
                 child: None,
             })
             .collect();
-        let mut cluster = NatsCluster { nodes, _dir: dir };
+        let mut cluster = NatsCluster {
+            nodes,
+            config,
+            _dir: dir,
+        };
         for i in 0..n {
             cluster.start_node(i);
         }
@@ -78,6 +95,9 @@ impl NatsCluster {
             .collect();
         let node = &mut self.nodes[i];
         let mut command = Command::new("nats-server");
+        if let Some(config) = &self.config {
+            command.arg("-c").arg(config);
+        }
         command
             .args(["-a", "127.0.0.1", "-p"])
             .arg(node.client_port.to_string())
@@ -114,10 +134,15 @@ impl NatsCluster {
     /// The client URLs of every node, as `cluster.nats_urls` takes them
     /// from the environment.
     pub fn urls_setting(&self) -> String {
+        self.urls_setting_as("nats", "127.0.0.1")
+    }
+
+    /// The same with another scheme and host name (`tls`, `localhost`).
+    pub fn urls_setting_as(&self, scheme: &str, host: &str) -> String {
         let urls: Vec<String> = self
             .nodes
             .iter()
-            .map(|n| format!("\"nats://127.0.0.1:{}\"", n.client_port))
+            .map(|n| format!("\"{scheme}://{host}:{}\"", n.client_port))
             .collect();
         format!("[{}]", urls.join(","))
     }

@@ -123,6 +123,13 @@ pub(crate) async fn connect(
                 observer.connected(true);
                 return Ok(client);
             }
+            // Wrong credentials or certificates do not get better by
+            // waiting: say so at once.
+            Err(e) if refused(&e) => {
+                return Err(ClusterError::Nats(format!(
+                    "connecting to {urls} (cluster.nats_urls) was refused: {e} (check cluster.auth and cluster.tls)"
+                )))
+            }
             Err(e) if started.elapsed() < START_PATIENCE => {
                 tracing::warn!(%urls, error = %e, "cannot reach NATS yet; retrying");
                 tokio::time::sleep(Duration::from_secs(1)).await;
@@ -133,6 +140,21 @@ pub(crate) async fn connect(
                 )))
             }
         }
+    }
+}
+
+/// Whether NATS refused this replica (credentials, TLS) rather than not
+/// answering.
+fn refused(e: &async_nats::ConnectError) -> bool {
+    use async_nats::ConnectErrorKind::*;
+    match e.kind() {
+        Authentication | AuthorizationViolation | Tls | ServerParse => true,
+        // A TLS handshake that fails (an untrusted certificate) surfaces as
+        // an I/O error of invalid data; a server not up yet does not.
+        Io => std::error::Error::source(e)
+            .and_then(|s| s.downcast_ref::<std::io::Error>())
+            .is_some_and(|io| io.kind() == std::io::ErrorKind::InvalidData),
+        _ => false,
     }
 }
 
