@@ -57,6 +57,11 @@ async fn main() -> anyhow::Result<()> {
             humem_eval::restart_bench::restart(args).await
         }
         #[cfg(feature = "eval")]
+        Command::Bench(BenchCommand::Cluster(args)) => {
+            init_logging(LogFormat::Plain, "warn");
+            cli::cluster_bench::run(args).await
+        }
+        #[cfg(feature = "eval")]
         Command::Eval(args) => {
             let config = Config::load(cli.config.as_deref(), figment::Figment::new())?;
             init_logging(LogFormat::Plain, "warn,ort::logging=error");

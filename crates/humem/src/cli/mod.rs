@@ -5,6 +5,8 @@
 //! a script sends is exactly what the `.proto` documents.
 
 pub(crate) mod client;
+#[cfg(feature = "eval")]
+pub mod cluster_bench;
 pub mod export;
 pub mod load;
 pub mod probe;
@@ -141,6 +143,10 @@ pub enum BenchCommand {
     /// Opening a large store from its index snapshot and journal against
     /// rebuilding the index from every stored record.
     Restart(humem_eval::restart_bench::RestartBench),
+    /// Cluster mode against running replicas: replica lag under a fleet's
+    /// insert rate, query throughput per replica count, and (with
+    /// `--failover`) writes lost while replicas and NATS nodes are killed.
+    Cluster(crate::cli::cluster_bench::ClusterBench),
 }
 
 #[derive(Debug, Clone, Copy, PartialEq, Eq, clap::ValueEnum)]
