@@ -10,14 +10,16 @@
 namespace humem::internal {
 
 QueryLane::QueryLane(QueryKind kind, v1::PlaceRecognition::Stub* stub, CallRegistry* calls, ResultBoard* board,
-                     std::chrono::milliseconds timeout, OnResult on_result, WritesFinished writes_finished)
+                     std::chrono::milliseconds timeout, OnResult on_result, WritesFinished writes_finished,
+                     LogPosition log_position)
     : kind_(kind),
       stub_(stub),
       calls_(calls),
       board_(board),
       timeout_(timeout),
       on_result_(std::move(on_result)),
-      writes_finished_(std::move(writes_finished)) {
+      writes_finished_(std::move(writes_finished)),
+      log_position_(std::move(log_position)) {
   thread_ = std::thread([this] { Run(); });
 }
 
@@ -80,6 +82,12 @@ void QueryLane::Run() {
         Publish(r, false);
         continue;
       }
+    }
+    // Read-your-writes across cluster replicas: whichever replica answers
+    // has applied this client's writes first.
+    if (log_position_ && !pending->request.has_min_log_sequence()) {
+      const uint64_t position = log_position_();
+      if (position > 0) pending->request.set_min_log_sequence(position);
     }
     board_->MarkInFlight(pending->ticket);
     QueryResult result;

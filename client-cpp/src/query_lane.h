@@ -26,9 +26,13 @@ class QueryLane {
   using OnResult = std::function<void(const QueryResult&)>;
   // The sequence through which every write is applied or failed (lock-free).
   using WritesFinished = std::function<uint64_t()>;
+  // Cluster mode: the write-log position of the client's applied writes;
+  // each query asks the server to have applied it (0: nothing asked).
+  using LogPosition = std::function<uint64_t()>;
 
   QueryLane(QueryKind kind, v1::PlaceRecognition::Stub* stub, CallRegistry* calls, ResultBoard* board,
-            std::chrono::milliseconds timeout, OnResult on_result, WritesFinished writes_finished = nullptr);
+            std::chrono::milliseconds timeout, OnResult on_result, WritesFinished writes_finished = nullptr,
+            LogPosition log_position = nullptr);
   ~QueryLane();
   QueryLane(const QueryLane&) = delete;
   QueryLane& operator=(const QueryLane&) = delete;
@@ -66,6 +70,7 @@ class QueryLane {
   const std::chrono::milliseconds timeout_;
   const OnResult on_result_;
   const WritesFinished writes_finished_;
+  const LogPosition log_position_;
   std::mutex submit_mutex_;  // tickets reach the slot in issue order
   LatestWinsSlot<Pending> slot_;
   std::thread thread_;

@@ -53,9 +53,11 @@ class VprClient::Impl {
         board_(options.result_history),
         writer_(stub_.get(), &calls_, options),
         loop_(QueryKind::kLoopClosure, stub_.get(), &calls_, &board_, options.query_timeout,
-              options.on_query_result, [this] { return writer_.finished_through(); }),
+              options.on_query_result, [this] { return writer_.finished_through(); },
+              [this] { return writer_.log_position(); }),
         reloc_(QueryKind::kRelocalisation, stub_.get(), &calls_, &board_, options.query_timeout,
-               options.on_query_result, [this] { return writer_.finished_through(); }) {
+               options.on_query_result, [this] { return writer_.finished_through(); },
+               [this] { return writer_.log_position(); }) {
     // Queries held back for writes (QueryRequest::after_queued_writes)
     // re-check when a write finishes. The writer thread is joined in Close()
     // before the lanes go away.
@@ -188,6 +190,7 @@ WriteResult VprClient::Insert(const Keyframe& keyframe, std::chrono::millisecond
   op.send = [request](internal::Stub& stub, grpc::ClientContext& context, WriteResult& result) {
     v1::InsertResponse response;
     grpc::Status status = stub.Insert(&context, *request, &response);
+    result.log_sequence = response.log_sequence();
     result.replaced = response.replaced();
     result.store_keyframes = response.store_keyframes();
     result.affected = 1;
@@ -206,6 +209,7 @@ WriteResult VprClient::Erase(const std::vector<uint64_t>& keyframe_ids, std::chr
   op.send = [request](internal::Stub& stub, grpc::ClientContext& context, WriteResult& result) {
     v1::EraseResponse response;
     grpc::Status status = stub.Erase(&context, *request, &response);
+    result.log_sequence = response.log_sequence();
     result.affected = response.erased();
     return status;
   };
@@ -222,6 +226,7 @@ WriteResult VprClient::ResetMap(uint64_t map_id, std::chrono::milliseconds wait)
   op.send = [request](internal::Stub& stub, grpc::ClientContext& context, WriteResult& result) {
     v1::ResetMapResponse response;
     grpc::Status status = stub.ResetMap(&context, *request, &response);
+    result.log_sequence = response.log_sequence();
     result.affected = response.erased();
     return status;
   };
@@ -237,6 +242,7 @@ WriteResult VprClient::ResetSession(std::chrono::milliseconds wait) {
   op.send = [request](internal::Stub& stub, grpc::ClientContext& context, WriteResult& result) {
     v1::ResetSessionResponse response;
     grpc::Status status = stub.ResetSession(&context, *request, &response);
+    result.log_sequence = response.log_sequence();
     result.affected = response.erased();
     return status;
   };
@@ -253,6 +259,7 @@ WriteResult VprClient::UpdatePoses(const std::vector<PoseUpdate>& updates, std::
   op.send = [request](internal::Stub& stub, grpc::ClientContext& context, WriteResult& result) {
     v1::UpdatePosesResponse response;
     grpc::Status status = stub.UpdatePoses(&context, *request, &response);
+    result.log_sequence = response.log_sequence();
     result.affected = response.updated();
     result.missing_keyframe_ids.assign(response.missing_keyframe_ids().begin(),
                                        response.missing_keyframe_ids().end());

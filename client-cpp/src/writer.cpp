@@ -160,6 +160,9 @@ void Writer::Finish(WriteOp& op, WriteResult result, bool abandoned) {
       ++stats_.abandoned;
     } else if (result.state == WriteState::kApplied) {
       ++stats_.applied;
+      if (result.log_sequence > log_position_.load(std::memory_order_relaxed)) {
+        log_position_.store(result.log_sequence, std::memory_order_release);
+      }
     } else {
       ++stats_.failed;
     }

@@ -61,6 +61,9 @@ class Writer {
   // Every write up to this sequence is applied or failed for good
   // (lock-free: read under other components' locks).
   uint64_t finished_through() const { return finished_atomic_.load(std::memory_order_acquire); }
+  // Cluster mode: the highest write-log position of this client's applied
+  // writes (0 from a server not in cluster mode). Lock-free.
+  uint64_t log_position() const { return log_position_.load(std::memory_order_acquire); }
   // Called from the writer thread (no lock held) each time
   // finished_through() advances. Set it before queueing writes.
   void SetOnProgress(std::function<void()> on_progress);
@@ -89,6 +92,7 @@ class Writer {
   uint64_t next_sequence_ = 1;
   uint64_t finished_through_ = 0;  // every write up to this one is finished
   std::atomic<uint64_t> finished_atomic_{0};  // a copy of finished_through_
+  std::atomic<uint64_t> log_position_{0};
   std::function<void()> on_progress_;
   bool in_flight_ = false;
   bool closing_ = false;  // no new writes

@@ -2,7 +2,8 @@
 //! configuration, the metrics, and the server that wires them together.
 //!
 //! This crate is the service's top layer. Below it, and unaware of it, sit
-//! `humem-core` (keyframes, scoring, the index), `humem-store` (sled) and
+//! `humem-core` (keyframes, scoring, the index), `humem-store` (sled),
+//! `humem-cluster` (the replicated write log of cluster mode) and
 //! `humem-perception` (the models); above it only the `humem` binary and
 //! the evaluation harness. Within it, each module depends only on those
 //! listed after it:

@@ -48,8 +48,13 @@ struct WriteResult {
   uint64_t store_keyframes;
   uint64_t affected;
   std::vector<uint64_t> missing_keyframe_ids;
+  // A server in cluster mode: the write's position in its write log; the
+  // client's later queries ask any replica to have applied it first
+  // (read-your-writes). 0 from a server not in cluster mode.
+  uint64_t log_sequence;
 
-  WriteResult() : state(WriteState::kQueued), sequence(0), replaced(false), store_keyframes(0), affected(0) {}
+  WriteResult()
+      : state(WriteState::kQueued), sequence(0), replaced(false), store_keyframes(0), affected(0), log_sequence(0) {}
   bool applied() const { return state == WriteState::kApplied; }
 };
 

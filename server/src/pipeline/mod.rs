@@ -7,7 +7,8 @@
 //!   still to perceive, the query kind, the invalid-field error);
 //! - [`Pipeline`]: what each request does: latest-wins admission, turning
 //!   images into features (batched across a request's images), the
-//!   dimension check, the store write, the query scan on the blocking pool,
+//!   dimension check, the store write (through the replicated write log in
+//!   cluster mode, `humem-cluster`), the query scan on the blocking pool,
 //!   and the request-level metrics;
 //! - [`query`]: one query over the index, end to end, synchronous;
 //! - [`latest_wins`]: one pending query per client and kind, newest wins;
