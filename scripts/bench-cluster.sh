@@ -3,10 +3,10 @@
 # (Debian's nats-server) and 3 HuMem replicas on loopback, then
 #   1. `humem bench cluster`: replica lag under ROBOTS x RATE inserts, and
 #      query throughput with 1, 2 and 3 replicas;
-#   2. `humem bench cluster --failover`: writers on every replica while
-#      the stream's leader NATS node and one replica are killed (SIGKILL)
-#      and started again; the longest wait for an acknowledgement and the
-#      acknowledged writes lost (must be 0).
+#   2. `humem bench cluster --failover`, twice: writers on every replica
+#      while one replica, then the NATS node leading the stream, is killed
+#      (SIGKILL) and started again; the longest wait for an acknowledgement
+#      (the failover time) and the acknowledged writes lost (must be 0).
 #
 #   scripts/bench-cluster.sh [--robots N] [--rate HZ] [--duration S] [--dim D]
 #
@@ -47,6 +47,7 @@ start_nats() { # index
         --cluster_name bench --cluster "nats://127.0.0.1:$((base + 10 + i))" --routes "$routes" \
         >"$tmp/nats-$i.log" 2>&1 &
     nats_pid[$i]=$!
+    disown  # killed on purpose below: no job-control notices
 }
 
 start_humem() { # index port
@@ -56,6 +57,7 @@ start_humem() { # index port
         HUMEM_CLUSTER__ENABLED=true HUMEM_CLUSTER__NATS_URLS="$urls" HUMEM_CLUSTER__REPLICA_NAME="r$i" \
         "$bin" serve --listen "127.0.0.1:$port" --data-dir "$tmp/humem-$i" >"$tmp/humem-$i.out" 2>"$tmp/humem-$i.err" &
     humem_pid[$i]=$!
+    disown
     for _ in $(seq 600); do
         grep -q '^humem listening on ' "$tmp/humem-$i.out" && return 0
         sleep 0.1
@@ -86,17 +88,25 @@ echo "== lag and throughput (3 NATS nodes, stream with 3 copies, 3 replicas; $(n
 "$bin" bench cluster --replicas "$replicas" --robots "$robots" --rate "$rate" --duration "$duration" --dim "$dim"
 
 echo
-echo "== failover"
-"$bin" bench cluster --replicas "$replicas" --dim "$dim" --failover 20 &
+echo "== failover 1: a HuMem replica (SIGKILL on r2 at t=5 s, started again at t=10 s)"
+"$bin" bench cluster --replicas "$replicas" --dim "$dim" --failover 15 &
+bench=$!
+sleep 5
+kill -9 "${humem_pid[2]}"
+sleep 5
+start_humem 2 "${ports[2]}"
+wait "$bench"
+
+echo
+echo "== failover 2: the NATS node leading the stream (SIGKILL at t=5 s, started again at t=10 s)"
+"$bin" bench cluster --replicas "$replicas" --dim "$dim" --failover 15 &
 bench=$!
 sleep 5
 leader=$(stream_leader || true)
+echo "stream leader: ${leader:-unknown (killing n0)}"
 leader=${leader#n}
 leader=${leader:-0}
-echo "killing NATS node n$leader (the stream's leader) and replica r2 at t=5 s; both start again at t=10 s"
 kill -9 "${nats_pid[$leader]}"
-kill -9 "${humem_pid[2]}"
 sleep 5
 start_nats "$leader"
-start_humem 2 "${ports[2]}"
 wait "$bench"
