@@ -28,24 +28,14 @@ fn replica(nats: &NatsCluster, dir: &std::path::Path, name: &str) -> Server {
     Server::start_with(dir, &settings)
 }
 
-async fn stats(server: &Server) -> proto::StatsResponse {
-    server
-        .client()
-        .await
-        .stats(proto::StatsRequest {})
-        .await
-        .unwrap()
-        .into_inner()
-}
-
 /// Waits until `server` has applied the log up to `position`.
 async fn wait_for_position(server: &Server, position: u64, within: Duration) -> Duration {
     let started = Instant::now();
-    while stats(server).await.log_position < position {
+    while server.stats().await.log_position < position {
         assert!(
             started.elapsed() < within,
             "replica stuck at {} < {position}",
-            stats(server).await.log_position
+            server.stats().await.log_position
         );
         tokio::time::sleep(Duration::from_millis(5)).await;
     }
@@ -130,7 +120,7 @@ async fn writes_through_any_replica_reach_every_replica() {
     assert_eq!(answers[0], answers[1], "replicas a and b answer alike");
     assert_eq!(answers[0], answers[2], "replicas a and c answer alike");
     for server in &replicas {
-        let stats = stats(server).await;
+        let stats = server.stats().await;
         assert_eq!(stats.keyframes, drive.len() as u64);
         assert_eq!(stats.log_position, last);
     }
@@ -299,7 +289,7 @@ async fn no_acknowledged_write_is_lost_when_a_nats_node_and_a_replica_die() {
     for server in [&a, &b] {
         wait_for_position(server, newest, Duration::from_secs(30)).await;
     }
-    let (sa, sb) = (stats(&a).await, stats(&b).await);
+    let (sa, sb) = (a.stats().await, b.stats().await);
     assert_eq!(sa.keyframes, sb.keyframes);
     assert_eq!(sa.maps, sb.maps);
     let mut lost = 0;

@@ -6,16 +6,6 @@ use humem_server::proto;
 use crate::harness::Server;
 use crate::scenes::{self, id, query_stored, World};
 
-async fn stats(server: &Server) -> proto::StatsResponse {
-    server
-        .client()
-        .await
-        .stats(proto::StatsRequest {})
-        .await
-        .unwrap()
-        .into_inner()
-}
-
 #[tokio::test(flavor = "multi_thread")]
 async fn sigkill_after_acknowledged_inserts_loses_none() {
     let dir = tempfile::tempdir().unwrap();
@@ -44,7 +34,7 @@ async fn sigkill_after_acknowledged_inserts_loses_none() {
     server.kill();
 
     let server = Server::start_with(dir.path(), &snapshots);
-    let stats = stats(&server).await;
+    let stats = server.stats().await;
     assert_eq!(stats.keyframes, 200);
     let exposition = server.scrape();
     assert!(
@@ -75,7 +65,7 @@ async fn a_clean_restart_keeps_everything_and_exits_zero() {
         drive.iter().map(|(kf, _)| kf.clone()),
     )
     .await;
-    let before = stats(&server).await;
+    let before = server.stats().await;
     let opened = |server: &Server, source: &str| {
         Server::sample(
             &server.scrape(),
@@ -87,7 +77,7 @@ async fn a_clean_restart_keeps_everything_and_exits_zero() {
         "a new store is built from its tree"
     );
     let server = server.restart();
-    let after = stats(&server).await;
+    let after = server.stats().await;
     // The shutdown wrote an index snapshot, so the restart loads it and
     // replays nothing.
     assert!(opened(&server, "snapshot").is_some(), "{}", server.scrape());

@@ -136,6 +136,16 @@ impl Server {
             .expect("connecting to humem")
     }
 
+    /// What the store holds (the Stats RPC).
+    pub async fn stats(&self) -> humem_server::proto::StatsResponse {
+        self.client()
+            .await
+            .stats(humem_server::proto::StatsRequest {})
+            .await
+            .unwrap()
+            .into_inner()
+    }
+
     /// The Prometheus exposition, fetched over plain HTTP/1.1.
     pub fn scrape(&self) -> String {
         use std::io::{Read, Write};

@@ -80,31 +80,17 @@ fn descriptor(dim: usize, seed: u64) -> Vec<f32> {
 }
 
 fn keyframe(robot: &str, id: u64, dim: usize) -> proto::Keyframe {
-    proto::Keyframe {
-        robot_id: robot.into(),
-        session_id: "bench".into(),
-        keyframe_id: Some(id),
-        frame_id: Some(3 * id),
-        timestamp: id as f64 / 10.0,
-        map_id: Some(0),
-        pose: Some(proto::Pose {
-            translation: Some(proto::Vec3 {
-                x: id as f64,
-                y: 0.0,
-                z: 0.0,
-            }),
-            rotation: Some(proto::Quaternion {
-                w: 1.0,
-                x: 0.0,
-                y: 0.0,
-                z: 0.0,
-            }),
-        }),
-        content: Some(proto::keyframe::Content::Features(proto::Features {
-            global_descriptor: descriptor(dim, id ^ (robot.len() as u64) << 32 ^ hash(robot)),
+    let seed = id ^ hash(robot);
+    super::load::keyframe(
+        robot,
+        "bench",
+        id,
+        id as f64 / 10.0,
+        proto::keyframe::Content::Features(proto::Features {
+            global_descriptor: descriptor(dim, seed),
             ..Default::default()
-        })),
-    }
+        }),
+    )
 }
 
 fn hash(s: &str) -> u64 {

@@ -129,6 +129,37 @@ impl Content {
     }
 }
 
+/// A simulated robot's keyframe `tick`: frame `3 tick`, map 0, moving one
+/// metre along x per keyframe.
+pub(crate) fn keyframe(
+    robot_id: &str,
+    session_id: &str,
+    tick: u64,
+    timestamp: f64,
+    content: proto::keyframe::Content,
+) -> proto::Keyframe {
+    proto::Keyframe {
+        robot_id: robot_id.into(),
+        session_id: session_id.into(),
+        keyframe_id: Some(tick),
+        frame_id: Some(tick * 3),
+        timestamp,
+        map_id: Some(0),
+        pose: Some(proto::Pose {
+            translation: Some(proto::Vec3 {
+                x: tick as f64,
+                y: 0.0,
+                z: 0.0,
+            }),
+            rotation: Some(proto::Quaternion {
+                w: 1.0,
+                ..Default::default()
+            }),
+        }),
+        content: Some(content),
+    }
+}
+
 fn load_images(dir: &std::path::Path) -> anyhow::Result<Vec<Vec<u8>>> {
     humem_perception::image::image_files(dir)
         .with_context(|| format!("reading {}", dir.display()))?
@@ -153,26 +184,13 @@ async fn robot(
     let mut tick = 0u64;
     while Instant::now() < end {
         ticker.tick().await;
-        let keyframe = proto::Keyframe {
-            robot_id: robot_id.clone(),
-            session_id: "load".into(),
-            keyframe_id: Some(tick),
-            frame_id: Some(tick * 3),
-            timestamp: tick as f64 * period.as_secs_f64(),
-            map_id: Some(0),
-            pose: Some(proto::Pose {
-                translation: Some(proto::Vec3 {
-                    x: tick as f64,
-                    y: 0.0,
-                    z: 0.0,
-                }),
-                rotation: Some(proto::Quaternion {
-                    w: 1.0,
-                    ..Default::default()
-                }),
-            }),
-            content: Some(content.keyframe_content(robot, tick)),
-        };
+        let keyframe = keyframe(
+            &robot_id,
+            "load",
+            tick,
+            tick as f64 * period.as_secs_f64(),
+            content.keyframe_content(robot, tick),
+        );
         let query_content =
             args.query_content
                 .then(|| match content.keyframe_content(robot, tick) {
