@@ -412,6 +412,30 @@ mod tests {
     }
 
     #[test]
+    fn cluster_settings_are_checked_at_load() {
+        let dir = tempfile::tempdir().unwrap();
+        let file = dir.path().join("humem.toml");
+        std::fs::write(
+            &file,
+            "[cluster]\nenabled = true\nnats_urls = [\"nats://n1:4222\"]\n[cluster.tls]\nca = \"ca.crt\"\n",
+        )
+        .unwrap();
+        let config = Config::load(Some(&file), Figment::new()).unwrap();
+        assert!(config.cluster.enabled);
+        assert_eq!(config.cluster.stream_replicas, 3);
+        for (text, field) in [
+            ("stream_replicas = 0", "stream_replicas"),
+            ("nats_urls = []", "nats_urls"),
+            ("subject = \"humem.>\"", "subject"),
+            ("publish_timout_ms = 5", "publish_timout_ms"),
+        ] {
+            std::fs::write(&file, format!("[cluster]\nenabled = true\n{text}\n")).unwrap();
+            let err = Config::load(Some(&file), Figment::new()).unwrap_err();
+            assert!(err.to_string().contains(field), "{text}: {err}");
+        }
+    }
+
+    #[test]
     fn calibration_and_contradiction_settings_are_checked_at_load() {
         let dir = tempfile::tempdir().unwrap();
         let file = dir.path().join("humem.toml");
