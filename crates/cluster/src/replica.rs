@@ -22,6 +22,11 @@ use crate::nats;
 use crate::observe::ClusterObserver;
 use crate::ClusterError;
 
+/// Keyframes per log entry when a store written before cluster mode is
+/// published: about 0.5 MB with images' features, under NATS' default
+/// 1 MB message limit.
+pub const IMPORT_BATCH: usize = 32;
+
 /// A write, applied: what it did here, and its position in the log (the
 /// token a client gives another replica to read its own writes).
 #[derive(Debug, Clone, PartialEq)]
@@ -86,6 +91,18 @@ impl Replica {
                 config.stream, state.first_sequence
             )));
         }
+        // A store written before cluster mode holds keyframes no log entry
+        // carries. Into an empty stream it is published whole (below), so
+        // the other replicas get it; next to another replica's entries it
+        // cannot be placed in order, so it is refused.
+        let existing = store.index().len();
+        let import = position == 0 && existing > 0;
+        if import && state.last_sequence > 0 {
+            return Err(ClusterError::Diverged(format!(
+                "this store holds {existing} keyframes written outside cluster mode, and stream {} already holds {} entries: start this replica on an empty data directory (it catches up from the stream), or put the keyframes into the cluster through the API",
+                config.stream, state.last_sequence
+            )));
+        }
         let (applied, _) = watch::channel(position);
         let shared = Arc::new(Shared {
             waiters: Mutex::new(HashMap::new()),
@@ -107,7 +124,7 @@ impl Replica {
         let applier = tokio::spawn(applier::run(
             stream.clone(),
             config.subject.clone(),
-            store,
+            store.clone(),
             shared.clone(),
             observer.clone(),
             stop_rx.clone(),
@@ -118,7 +135,7 @@ impl Replica {
             observer.clone(),
             stop_rx,
         ));
-        Ok(Replica {
+        let replica = Replica {
             inner: Arc::new(Inner {
                 js,
                 start_target: state.last_sequence,
@@ -130,7 +147,42 @@ impl Replica {
                 stop,
                 tasks: Mutex::new(vec![applier, health]),
             }),
-        })
+        };
+        if import {
+            replica.import(&store).await?;
+        }
+        Ok(replica)
+    }
+
+    /// Publishes every keyframe of a store written before cluster mode
+    /// into the (empty) stream, [`IMPORT_BATCH`] to an entry, and waits
+    /// for each to be applied here (which replaces each keyframe by
+    /// itself and records the positions).
+    async fn import(&self, store: &Store) -> Result<(), ClusterError> {
+        let keys: Vec<_> = {
+            let index = store.index();
+            (0..index.len())
+                .map(|row| index.meta(row).key.clone())
+                .collect()
+        };
+        tracing::info!(
+            keyframes = keys.len(),
+            "publishing the keyframes of a store written before cluster mode to the empty write log"
+        );
+        let started = Instant::now();
+        for chunk in keys.chunks(IMPORT_BATCH) {
+            let keyframes: Vec<_> = chunk.iter().filter_map(|key| store.get(key)).collect();
+            if !keyframes.is_empty() {
+                self.write(Mutation::Insert(keyframes)).await?;
+            }
+        }
+        tracing::info!(
+            keyframes = keys.len(),
+            entries = self.applied(),
+            seconds = started.elapsed().as_secs_f64(),
+            "store published to the write log"
+        );
+        Ok(())
     }
 
     /// Waits until this replica has applied every entry the stream held

@@ -256,3 +256,41 @@ async fn a_store_the_stream_cannot_bring_up_to_date_is_refused() {
         "{err}"
     );
 }
+
+#[tokio::test(flavor = "multi_thread")]
+async fn a_store_from_before_cluster_mode_is_published_into_an_empty_log() {
+    let Some(nats) = nats() else { return };
+    let old = tempfile::tempdir().unwrap();
+    {
+        let store = open(old.path());
+        store
+            .apply(Mutation::Insert((0..50).map(keyframe).collect()))
+            .await
+            .unwrap();
+    }
+    // Joining an empty stream: the 50 keyframes become 2 entries (32 + 18).
+    let (a, a_store) = start(&nats, old.path()).await;
+    assert_eq!(a.applied(), 2);
+    assert_eq!(a_store.log_position().unwrap(), 2);
+    assert_eq!(a_store.index().len(), 50);
+    // A new replica gets them from the log.
+    let fresh = tempfile::tempdir().unwrap();
+    let (_b, b_store) = start(&nats, fresh.path()).await;
+    assert_eq!(b_store.index().len(), 50);
+    // Another store from before cluster mode cannot join a log that has
+    // entries already.
+    let other = tempfile::tempdir().unwrap();
+    let store = open(other.path());
+    store
+        .apply(Mutation::Insert(vec![keyframe(99)]))
+        .await
+        .unwrap();
+    let err = Replica::start(config(&nats), store, Arc::new(Unobserved))
+        .await
+        .err()
+        .unwrap();
+    assert!(
+        matches!(err, ClusterError::Diverged(ref m) if m.contains("outside cluster mode")),
+        "{err}"
+    );
+}
