@@ -155,7 +155,7 @@ fi
 # --- 6. the example configurations, read by the real binary -------------------------------------
 step "example configurations, started by the real binary"
 scripts/make-dev-certs.sh "$TMP/certs" >/dev/null
-for config in deploy/systemd/humem.toml deploy/kubernetes/humem.toml docker/humem.toml; do
+for config in deploy/systemd/humem.toml deploy/kubernetes/base/humem.toml docker/humem.toml; do
     name=config-$(echo "$config" | tr / -)
     # Only the places change: ports (on the configuration's own address, so
     # that the refusal to serve a network address insecurely applies), the

@@ -3,7 +3,11 @@
 agree with each other and with the service's configuration:
 
 - Kubernetes (deploy/kubernetes): every document has apiVersion/kind/name;
-  the kustomizations name files that exist; the StatefulSet has one replica, a
+  the kustomizations name files and bases that exist, files inside their own
+  directory and no base that contains them (which kustomize refuses: "cycle
+  detected", or files outside the root without LoadRestrictionsNone);
+  deploy/kubernetes deploys the base (base/) as it is; the base's
+  StatefulSet has one replica, a
   headless governing Service, a volume claim mounted at the configuration's
   store.data_dir, the configuration mounted where `--config` points,
   HTTP probes on the metrics port (the gRPC port speaks TLS), TLS from a
@@ -12,9 +16,9 @@ agree with each other and with the service's configuration:
   humem.toml binds 0.0.0.0 on the container ports; the Service and the
   ServiceMonitor select what they should; the GPU overlay asks for a GPU and
   the CUDA provider; the PrometheusRule generator reproduces the rules file.
-- Kubernetes cluster mode (deploy/kubernetes/cluster): the overlay's
-  resources exist and name the base's files (the base itself stays one
-  replica); its patch scales the StatefulSet past one replica and mounts the
+- Kubernetes cluster mode (deploy/kubernetes/cluster): the overlay takes
+  the base (which itself stays one replica), replaces its ConfigMaps and
+  keeps its image; its patch scales the StatefulSet past one replica and mounts the
   NATS CA, password and the shared token file from Secrets; its humem.toml
   knows only keys the service knows ([cluster] against
   crates/cluster/src/config.rs, the rest against the base's), turns cluster
@@ -110,19 +114,43 @@ def secret_volume_paths(volumes: list[dict], mounts: list[dict]) -> dict[str, se
     return out
 
 
-def check_kubernetes(repo: str, r: Report) -> None:
-    base = os.path.join(repo, "deploy/kubernetes")
-    kustomization = load_yaml_docs(os.path.join(base, "kustomization.yaml"))[0]
+def check_kustomization_resources(directory: str, kustomization: dict, label: str, r: Report) -> list[dict]:
+    """Each resource of a kustomization is a file inside its directory or a
+    directory with a kustomization.yaml (a base) that does not contain it:
+    kustomize refuses a base above the overlay ("cycle detected") and, without
+    --load-restrictor LoadRestrictionsNone, files outside the overlay's root.
+    Returns the documents of the resources, a base's resources included (not
+    its generators or patches)."""
     docs = []
     for resource in kustomization.get("resources", []):
-        path = os.path.join(base, resource)
-        if r.check(os.path.isfile(path), f"kustomization resource {resource} exists"):
+        path = os.path.normpath(os.path.join(directory, resource))
+        if os.path.isdir(path):
+            if not r.check(os.path.isfile(os.path.join(path, "kustomization.yaml")), f"{label}: {resource} is a base (has a kustomization.yaml)"):
+                continue
+            if r.check(os.path.commonpath([path, directory]) != path, f"{label}: base {resource} does not contain the kustomization (no cycle)"):
+                docs += check_kustomization_resources(path, load_yaml_docs(os.path.join(path, "kustomization.yaml"))[0], f"{label}: {resource}", r)
+        elif r.check(os.path.isfile(path), f"{label}: resource {resource} exists"):
+            r.check(os.path.commonpath([path, directory]) == directory, f"{label}: resource {resource} is inside the kustomization's directory")
             docs += load_yaml_docs(path)
+    return docs
+
+
+def check_kubernetes(repo: str, r: Report) -> None:
+    kubernetes = os.path.join(repo, "deploy/kubernetes")
+    base = os.path.join(kubernetes, "base")
+    # `kubectl apply -k deploy/kubernetes`: the base, unchanged.
+    top = load_yaml_docs(os.path.join(kubernetes, "kustomization.yaml"))[0]
+    check_kustomization_resources(kubernetes, top, "deploy/kubernetes kustomization", r)
+    r.check([os.path.normpath(os.path.join(kubernetes, res)) for res in top.get("resources", [])] == [base]
+            and top.keys() <= {"apiVersion", "kind", "resources"},
+            "deploy/kubernetes kustomization: the base (base/) and nothing else")
+    kustomization = load_yaml_docs(os.path.join(base, "kustomization.yaml"))[0]
+    docs = check_kustomization_resources(base, kustomization, "base kustomization", r)
     generators = {g["name"]: g for g in kustomization.get("configMapGenerator", [])}
     for g in generators.values():
         for file in g.get("files", []):
             r.check(os.path.isfile(os.path.join(base, file.split("=")[-1])), f"configMapGenerator {g['name']}: {file} exists")
-    for doc in docs + load_yaml_docs(os.path.join(base, "monitoring/servicemonitor.yaml")):
+    for doc in docs + load_yaml_docs(os.path.join(kubernetes, "monitoring/servicemonitor.yaml")):
         r.check(bool(doc.get("apiVersion") and doc.get("kind") and doc.get("metadata", {}).get("name")),
                 f"{doc.get('kind')}/{doc.get('metadata', {}).get('name')}: apiVersion, kind, metadata.name")
     by_kind = {}
@@ -188,15 +216,16 @@ def check_kubernetes(repo: str, r: Report) -> None:
         names = {p["name"]: p for p in service["spec"]["ports"]}
         r.check({"grpc", "metrics"} <= names.keys() and all(p["targetPort"] in ports for p in names.values()),
                 "Service humem: grpc and metrics ports onto named container ports")
-        monitor = load_yaml_docs(os.path.join(base, "monitoring/servicemonitor.yaml"))[0]
+        monitor = load_yaml_docs(os.path.join(kubernetes, "monitoring/servicemonitor.yaml"))[0]
         selector = monitor["spec"]["selector"]["matchLabels"]
         selected = [n for n, s in by_kind.get("Service", {}).items() if selector.items() <= s["metadata"].get("labels", {}).items()]
         r.check(selected == ["humem"], f"ServiceMonitor selects the Service humem only (job=\"humem\"), got {selected}")
         r.check(all(e.get("port") in names for e in monitor["spec"]["endpoints"]), "ServiceMonitor endpoints name Service ports")
 
-    gpu = os.path.join(base, "gpu")
+    gpu = os.path.join(kubernetes, "gpu")
     overlay = load_yaml_docs(os.path.join(gpu, "kustomization.yaml"))[0]
-    r.check(all(os.path.exists(os.path.join(gpu, res)) for res in overlay.get("resources", [])), "gpu overlay: resources exist")
+    check_kustomization_resources(gpu, overlay, "gpu overlay", r)
+    r.check(base in {os.path.normpath(os.path.join(gpu, res)) for res in overlay.get("resources", [])}, "gpu overlay: takes the base (../base)")
     for patch in overlay.get("patches", []):
         path = os.path.join(gpu, patch["path"])
         if not r.check(os.path.isfile(path), f"gpu overlay: {patch['path']} exists"):
@@ -207,34 +236,33 @@ def check_kubernetes(repo: str, r: Report) -> None:
         r.check(c.get("resources", {}).get("limits", {}).get("nvidia.com/gpu") == 1, "gpu patch: limits nvidia.com/gpu: 1")
         r.check({"name": "HUMEM_PERCEPTION__PROVIDER", "value": "cuda"} in c.get("env", []), "gpu patch: provider cuda")
 
-    generated = subprocess.run([os.path.join(base, "monitoring/prometheusrule.sh")], capture_output=True, text=True, check=True).stdout
+    generated = subprocess.run([os.path.join(kubernetes, "monitoring/prometheusrule.sh")], capture_output=True, text=True, check=True).stdout
     rule = yaml.safe_load(generated)
     rules = load_yaml_docs(os.path.join(repo, "deploy/prometheus/rules/humem.rules.yml"))[0]
     r.check(rule["kind"] == "PrometheusRule" and rule["spec"] == rules, "prometheusrule.sh reproduces the rules file")
 
 
 def check_cluster_overlay(repo: str, r: Report) -> None:
-    """deploy/kubernetes/cluster: the base's resources, scaled out, in cluster mode on nats.yaml."""
-    base = os.path.join(repo, "deploy/kubernetes")
-    overlay_dir = os.path.join(base, "cluster")
+    """deploy/kubernetes/cluster: the base, scaled out, in cluster mode on nats.yaml."""
+    kubernetes = os.path.join(repo, "deploy/kubernetes")
+    base = os.path.join(kubernetes, "base")
+    overlay_dir = os.path.join(kubernetes, "cluster")
     base_kustomization = load_yaml_docs(os.path.join(base, "kustomization.yaml"))[0]
     overlay = load_yaml_docs(os.path.join(overlay_dir, "kustomization.yaml"))[0]
-    docs = []
-    for resource in overlay.get("resources", []):
-        path = os.path.normpath(os.path.join(overlay_dir, resource))
-        if r.check(os.path.isfile(path), f"cluster overlay: resource {resource} exists (a file)"):
-            docs += load_yaml_docs(path)
+    docs = check_kustomization_resources(overlay_dir, overlay, "cluster overlay", r)
     named = {os.path.normpath(os.path.join(overlay_dir, res)) for res in overlay.get("resources", [])}
-    r.check({os.path.join(base, res) for res in base_kustomization.get("resources", [])} <= named,
-            "cluster overlay: takes every resource of the base")
-    # The base's generator and images, repeated (the base is not loaded).
+    r.check(base in named, "cluster overlay: takes the base (../base), so every resource of the base")
+    # The base's ConfigMaps replaced by the overlay's (its humem.toml), the base's images kept.
     base_generators = {g["name"] for g in base_kustomization.get("configMapGenerator", [])}
     generators = {g["name"]: g for g in overlay.get("configMapGenerator", [])}
-    r.check(base_generators <= generators.keys(), f"cluster overlay: generates the base's ConfigMaps {sorted(base_generators)}")
+    r.check(all(generators.get(name, {}).get("behavior") == "replace" for name in base_generators),
+            f"cluster overlay: replaces the base's ConfigMaps {sorted(base_generators)} (behavior: replace)")
     for g in generators.values():
         for file in g.get("files", []):
             r.check(os.path.isfile(os.path.join(overlay_dir, file.split("=")[-1])), f"cluster overlay: configMapGenerator {g['name']}: {file} exists")
-    r.check(overlay.get("images") == base_kustomization.get("images"), "cluster overlay: the base's images")
+    base_images = {i["name"] for i in base_kustomization.get("images", [])}
+    overridden = sorted(i["name"] for i in overlay.get("images", []) if i["name"] in base_images)
+    r.check(bool(base_images) and not overridden, f"cluster overlay: the base's images {sorted(base_images)} (overridden: {overridden or 'none'})")
     for doc in docs:
         r.check(bool(doc.get("apiVersion") and doc.get("kind") and doc.get("metadata", {}).get("name")),
                 f"cluster overlay: {doc.get('kind')}/{doc.get('metadata', {}).get('name')}: apiVersion, kind, metadata.name")
@@ -391,7 +419,7 @@ def check_cluster_overlay(repo: str, r: Report) -> None:
     r.check(security.get("runAsNonRoot") is True and security.get("allowPrivilegeEscalation") is False,
             "nats: non-root, no privilege escalation")
     # Prometheus Operator: the ServiceMonitor still selects HuMem's Service only.
-    monitor = load_yaml_docs(os.path.join(base, "monitoring/servicemonitor.yaml"))[0]
+    monitor = load_yaml_docs(os.path.join(kubernetes, "monitoring/servicemonitor.yaml"))[0]
     selector = monitor["spec"]["selector"]["matchLabels"]
     selected = [n for n, sv in by_kind.get("Service", {}).items() if selector.items() <= sv["metadata"].get("labels", {}).items()]
     r.check(selected == ["humem"], f"cluster overlay: the ServiceMonitor selects the Service humem only, got {selected}")
