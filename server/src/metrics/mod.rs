@@ -6,7 +6,8 @@
 //! Prometheus conventions: `humem_` prefix, base units, `_total` counters,
 //! `_seconds` durations. Gauges that describe the store (keyframes per map,
 //! bytes on disk) are computed when scraped. The exposition is the
-//! `prometheus` crate's text encoder, served over HTTP by axum.
+//! `prometheus` crate's text encoder, served over HTTP by axum. The
+//! cluster-mode metrics, fed by the replica's observer, are in [`cluster`].
 
 pub mod cluster;
 
