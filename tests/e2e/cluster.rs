@@ -267,14 +267,20 @@ async fn no_acknowledged_write_is_lost_when_a_nats_node_and_a_replica_die() {
         }));
     }
 
+    // The node leading the stream's copies: its loss makes JetStream elect
+    // another, and writes wait that out (publish retries with the same id).
     tokio::time::sleep(Duration::from_millis(1500)).await;
-    nats.kill_node(0);
+    let leader = nats
+        .stream_leader("HUMEM_WRITES")
+        .expect("a node leads the stream");
+    nats.kill_node(leader);
     b.kill();
     tokio::time::sleep(Duration::from_millis(2500)).await;
     let b = replica(&nats, dir_b.path(), "b");
     urls.lock()[1] = b.url.clone();
-    nats.start_node(0);
-    tokio::time::sleep(Duration::from_millis(2000)).await;
+    nats.start_node(leader);
+    // Long enough for writes to go on after JetStream's election (4-9 s).
+    tokio::time::sleep(Duration::from_millis(6000)).await;
     stop.store(true, Ordering::Relaxed);
 
     let mut acked = Vec::new();
@@ -286,8 +292,15 @@ async fn no_acknowledged_write_is_lost_when_a_nats_node_and_a_replica_die() {
         .flat_map(|a| a.positions.iter().copied())
         .max()
         .unwrap();
+    // Entries published but not acknowledged (a reply lost to the kills)
+    // may lie beyond the newest acknowledged one: both replicas must reach
+    // the end of the log.
     for server in [&a, &b] {
         wait_for_position(server, newest, Duration::from_secs(30)).await;
+    }
+    let end = a.stats().await.log_position.max(b.stats().await.log_position);
+    for server in [&a, &b] {
+        wait_for_position(server, end, Duration::from_secs(30)).await;
     }
     let (sa, sb) = (a.stats().await, b.stats().await);
     assert_eq!(sa.keyframes, sb.keyframes);

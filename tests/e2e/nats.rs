@@ -38,6 +38,8 @@ struct Node {
     name: String,
     client_port: u16,
     route_port: u16,
+    /// HTTP monitoring (`/jsz`), to find the stream's leader.
+    monitor_port: u16,
     store: PathBuf,
     child: Option<Child>,
 }
@@ -71,6 +73,7 @@ impl NatsCluster {
                 name: format!("n{i}"),
                 client_port: free_port(),
                 route_port: free_port(),
+                monitor_port: free_port(),
                 store: dir.path().join(format!("n{i}")),
                 child: None,
             })
@@ -101,6 +104,8 @@ impl NatsCluster {
         command
             .args(["-a", "127.0.0.1", "-p"])
             .arg(node.client_port.to_string())
+            .arg("-m")
+            .arg(node.monitor_port.to_string())
             .args(["-n", &node.name, "-js", "-sd"])
             .arg(&node.store)
             .stdout(Stdio::null())
@@ -121,6 +126,43 @@ impl NatsCluster {
             );
             std::thread::sleep(Duration::from_millis(50));
         }
+    }
+
+    /// The node leading `stream`'s copies, as the nodes' monitoring
+    /// endpoints report it (`/jsz`), if one does.
+    pub fn stream_leader(&self, stream: &str) -> Option<usize> {
+        use std::io::{Read, Write};
+        for node in self.nodes.iter().filter(|n| n.child.is_some()) {
+            let Ok(mut conn) = std::net::TcpStream::connect(("127.0.0.1", node.monitor_port))
+            else {
+                continue;
+            };
+            let _ = write!(
+                conn,
+                "GET /jsz?streams=true HTTP/1.1\r\nHost: localhost\r\nConnection: close\r\n\r\n"
+            );
+            let mut response = String::new();
+            if conn.read_to_string(&mut response).is_err() {
+                continue;
+            }
+            let Some((_, body)) = response.split_once("\r\n\r\n") else {
+                continue;
+            };
+            let Ok(jsz) = serde_json::from_str::<serde_json::Value>(body) else {
+                continue;
+            };
+            let leader = jsz["account_details"]
+                .as_array()
+                .into_iter()
+                .flatten()
+                .flat_map(|a| a["stream_detail"].as_array().into_iter().flatten())
+                .find(|s| s["name"] == stream)
+                .and_then(|s| s["cluster"]["leader"].as_str().map(str::to_string));
+            if let Some(leader) = leader {
+                return self.nodes.iter().position(|n| n.name == leader);
+            }
+        }
+        None
     }
 
     /// SIGKILL on node `i`.
