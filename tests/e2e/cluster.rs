@@ -298,7 +298,11 @@ async fn no_acknowledged_write_is_lost_when_a_nats_node_and_a_replica_die() {
     for server in [&a, &b] {
         wait_for_position(server, newest, Duration::from_secs(30)).await;
     }
-    let end = a.stats().await.log_position.max(b.stats().await.log_position);
+    let end = a
+        .stats()
+        .await
+        .log_position
+        .max(b.stats().await.log_position);
     for server in [&a, &b] {
         wait_for_position(server, end, Duration::from_secs(30)).await;
     }
