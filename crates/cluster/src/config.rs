@@ -198,15 +198,8 @@ impl ClusterConfig {
     /// else can listen in.
     pub fn nats_is_local(&self) -> bool {
         self.nats_urls.iter().all(|url| {
-            let host = url
-                .split("://")
-                .last()
-                .unwrap_or(url)
-                .rsplit('@')
-                .next()
-                .unwrap_or("");
-            let host = host.rsplit_once(':').map_or(host, |(h, _)| h);
-            matches!(host, "localhost" | "127.0.0.1" | "[::1]" | "::1")
+            url.parse::<async_nats::ServerAddr>()
+                .is_ok_and(|addr| matches!(addr.host(), "localhost" | "127.0.0.1" | "::1"))
         })
     }
 }
