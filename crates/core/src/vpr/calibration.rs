@@ -30,6 +30,8 @@
 //! known and every calibrated score is 0: nothing can be shown to stand out
 //! of a store that small.
 
+use strength_reduce::StrengthReducedU32;
+
 use crate::keyframe::KeyframeKey;
 use crate::vpr::clip01;
 use crate::vpr::params::VprParams;
@@ -64,6 +66,45 @@ pub fn sample_tag(key: &KeyframeKey) -> u32 {
     (h ^ (h >> 32)) as u32
 }
 
+/// [`NullModel::sampled`] at one stride, for testing every row of a scan:
+/// the division by the stride is done as a multiplication
+/// ([`strength_reduce`]), which is several times faster than a 64-bit
+/// division per row.
+#[derive(Debug, Clone, Copy)]
+pub struct Sampler(Stride);
+
+#[derive(Debug, Clone, Copy)]
+enum Stride {
+    /// Stride 0 or 1: every keyframe.
+    All,
+    /// Tags that are multiples of the stride.
+    Every(StrengthReducedU32),
+    /// A stride past every `u32` tag: only tag 0 is a multiple.
+    ZeroOnly,
+}
+
+impl Sampler {
+    /// The sampler of `stride`.
+    pub fn new(stride: usize) -> Sampler {
+        Sampler(match u32::try_from(stride) {
+            Ok(0 | 1) => Stride::All,
+            Ok(stride) => Stride::Every(StrengthReducedU32::new(stride)),
+            Err(_) => Stride::ZeroOnly,
+        })
+    }
+
+    /// Whether the keyframe with sample tag `tag` is in the sample, as
+    /// [`NullModel::sampled`] decides it.
+    #[inline]
+    pub fn keeps(&self, tag: u32) -> bool {
+        match self.0 {
+            Stride::All => true,
+            Stride::Every(stride) => tag % stride == 0,
+            Stride::ZeroOnly => tag == 0,
+        }
+    }
+}
+
 /// What a query scores on the eligible store.
 #[derive(Debug, Clone, Copy, PartialEq, Default)]
 pub struct NullModel {
@@ -80,9 +121,9 @@ impl NullModel {
     /// [`NullModel::sampled`] keeps are taken.
     pub fn estimate(scores: impl ExactSizeIterator<Item = (f32, u32)>) -> NullModel {
         let samples = scores.len();
-        let stride = Self::stride(samples);
+        let sampler = Sampler::new(Self::stride(samples));
         let sample: Vec<f32> = scores
-            .filter(|&(_, tag)| Self::sampled(tag, stride))
+            .filter(|&(_, tag)| sampler.keeps(tag))
             .map(|(score, _)| score)
             .collect();
         Self::from_sample(sample, samples)
@@ -130,6 +171,42 @@ mod tests {
     use super::*;
     use crate::vpr::testing::close;
     use proptest::prelude::*;
+
+    #[test]
+    fn the_sampler_keeps_what_sampled_keeps() {
+        let tags = [
+            0u32,
+            1,
+            2,
+            3,
+            488,
+            489,
+            978,
+            2_217_906_302,
+            u32::MAX - 1,
+            u32::MAX,
+        ];
+        let strides = [
+            0usize,
+            1,
+            2,
+            3,
+            489,
+            1 << 20,
+            u32::MAX as usize,
+            u32::MAX as usize + 1,
+        ];
+        for stride in strides {
+            let sampler = Sampler::new(stride);
+            for tag in tags.into_iter().chain((0..5_000).map(|t| t * 7919)) {
+                assert_eq!(
+                    sampler.keeps(tag),
+                    NullModel::sampled(tag, stride),
+                    "{tag} at {stride}"
+                );
+            }
+        }
+    }
 
     fn params(min: usize) -> VprParams {
         VprParams {

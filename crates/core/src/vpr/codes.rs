@@ -171,7 +171,45 @@ impl CodeMatrix {
         queries: &[&QueryCode; Q],
         out: &mut [[(f32, f32); Q]],
     ) {
-        // Sums for up to 64 rows at a time, on the stack.
+        self.for_each_sum(kernel, first, queries, out, |o, code, sums| {
+            for ((o, q), &sum) in o.iter_mut().zip(queries).zip(sums) {
+                *o = estimate_and_bound(q, code, sum);
+            }
+        });
+    }
+
+    /// Upper bounds `estimate + bound` on the products of the rows from
+    /// `first` on with each query (as [`CodeMatrix::dot_bounds_rows`]
+    /// gives them, added in the same way), one per entry of `out`. The scan
+    /// needs only these, and without the pairs in between its pass stays in
+    /// registers.
+    pub fn upper_bounds_rows<const Q: usize>(
+        &self,
+        kernel: CodeKernel,
+        first: usize,
+        queries: &[&QueryCode; Q],
+        out: &mut [[f32; Q]],
+    ) {
+        self.for_each_sum(kernel, first, queries, out, |o, code, sums| {
+            for ((o, q), &sum) in o.iter_mut().zip(queries).zip(sums) {
+                let (estimate, bound) = estimate_and_bound(q, code, sum);
+                *o = estimate + bound;
+            }
+        });
+    }
+
+    /// The kernel's sums for the rows from `first` on, 64 rows at a time
+    /// on the stack, handed to `each` with the row's entry of `out` and
+    /// its [`RowCode`].
+    #[inline(always)]
+    fn for_each_sum<const Q: usize, T>(
+        &self,
+        kernel: CodeKernel,
+        first: usize,
+        queries: &[&QueryCode; Q],
+        out: &mut [T],
+        mut each: impl FnMut(&mut T, &RowCode, &[i32; Q]),
+    ) {
         const GROUP: usize = 64;
         let mut sums = [[0i32; Q]; GROUP];
         let query_codes = queries.map(|q| q.codes.as_slice());
@@ -181,21 +219,25 @@ impl CodeMatrix {
             let sums = &mut sums[..out.len()];
             kernel.dots_rows(rows, self.stride, &query_codes, sums);
             for ((o, sums), code) in out.iter_mut().zip(sums.iter()).zip(&self.rows[start..]) {
-                for ((o, q), &sum) in o.iter_mut().zip(queries).zip(sums) {
-                    // Exact in i64; f32 rounds it (and the scales' product)
-                    // by a few parts in 10⁸, which the bound's relative
-                    // term covers.
-                    let exact = i64::from(sum) - 128 * q.sum;
-                    let estimate = exact as f32 * (q.scale * code.scale);
-                    let bound = q.decoded_norm * code.residual
-                        + (q.residual + q.rounding) * code.norm
-                        + estimate.abs() * 1e-6
-                        + ROUNDING_FLOOR;
-                    *o = (estimate, if bound.is_nan() { f32::INFINITY } else { bound });
-                }
+                each(o, code, sums);
             }
         }
     }
+}
+
+/// The estimate of a query's product with a row from their codes' sum,
+/// and the bound on its error (infinite where it is not a number).
+#[inline(always)]
+fn estimate_and_bound(q: &QueryCode, code: &RowCode, sum: i32) -> (f32, f32) {
+    // Exact in i64; f32 rounds it (and the scales' product) by a few parts
+    // in 10⁸, which the bound's relative term covers.
+    let exact = i64::from(sum) - 128 * q.sum;
+    let estimate = exact as f32 * (q.scale * code.scale);
+    let bound = q.decoded_norm * code.residual
+        + (q.residual + q.rounding) * code.norm
+        + estimate.abs() * 1e-6
+        + ROUNDING_FLOOR;
+    (estimate, if bound.is_nan() { f32::INFINITY } else { bound })
 }
 
 /// Added to every bound, with a millionth of the estimate: covers the

@@ -35,7 +35,7 @@ use serde::{Deserialize, Serialize};
 
 use crate::keyframe::Features;
 use crate::vpr::appearance;
-use crate::vpr::calibration::NullModel;
+use crate::vpr::calibration::{NullModel, Sampler};
 use crate::vpr::codes::QueryCode;
 use crate::vpr::kernels::CodeKernel;
 use crate::vpr::matrix::{dot, multi_dot};
@@ -193,14 +193,19 @@ impl<'a> QuerySide<'a> {
         // length), and one kernel shape serves every query.
         let last = codes.len() - 1;
         let query = |j: usize| &codes[j.min(last)];
+        let matrix = memory.descriptors().codes();
+        if !self.with_thumbnails {
+            // Without thumbnails `s_e` is the clipped product: one pass
+            // straight from the kernel's sums, branch-free.
+            matrix.upper_bounds_rows(kernel, first, &[query(0), query(1), query(2)], out);
+            for o in out.iter_mut().flatten() {
+                *o = clip01_branchless(*o) * (1.0 + 1e-6);
+            }
+            return;
+        }
         bounds.clear();
         bounds.resize(out.len(), [(0.0, 0.0); STEPS]);
-        memory.descriptors().codes().dot_bounds_rows(
-            kernel,
-            first,
-            &[query(0), query(1), query(2)],
-            bounds,
-        );
+        matrix.dot_bounds_rows(kernel, first, &[query(0), query(1), query(2)], bounds);
         // The relative margin covers the scene modulation's rounding: the
         // loose bound skips it, and (1 + λc)/(1 + λ) at c = 1 can round a
         // hair above 1. [`QuerySide::pair_bounds`] does the same for one.
@@ -244,6 +249,14 @@ impl<'a> QuerySide<'a> {
             )
         })
     }
+}
+
+/// [`clip01`](crate::vpr::clip01) written so that a loop of it
+/// vectorises: the same value for every input, NaN and −0 to +0 included
+/// (`max` returns its other operand for NaN; adding +0 turns −0 into +0).
+#[inline(always)]
+fn clip01_branchless(x: f32) -> f32 {
+    (x.max(0.0) + 0.0).min(1.0)
 }
 
 /// Ranking order of SCAL hits: `S_s` descending, then lower row first.
@@ -331,16 +344,27 @@ where
                 Some(i) if i < upper.len() => upper[i][j],
                 _ => side.pair_bounds(memory, &codes, kernel, c, j).1,
             };
-            let mut best = Vec::new();
+            // The block's K highest: candidates gather in a buffer of 4K,
+            // cut back to the K highest whenever it fills; from then on a
+            // row below the K-th highest so far cannot be among them.
+            let capacity = 4 * k.max(1);
+            let mut best = Vec::with_capacity(capacity);
+            let (mut count, mut threshold) = (0, f32::NEG_INFINITY);
             for (i, slot) in out.iter_mut().enumerate() {
                 let row = first + i;
                 if eligible(row) {
                     let u = temporal_hit(params, memory, steps, row, |c, j| (upper_at(c, j), None));
                     *slot = u.score;
-                    best.push((u.score, row));
+                    count += 1;
+                    if u.score >= threshold {
+                        best.push((u.score, row));
+                        if best.len() == capacity {
+                            keep_highest(&mut best, k);
+                            threshold = best.iter().fold(f32::INFINITY, |m, p| m.min(p.0));
+                        }
+                    }
                 }
             }
-            let count = best.len();
             keep_highest(&mut best, k);
             (count, best)
         })
@@ -368,33 +392,48 @@ where
     };
 
     // Every row that can reach L, scored exactly.
+    // Plain loops over blocks of the bounds: a rayon item per row would
+    // cost more than the comparison.
     let mut hits: Vec<ScalHit> = loose
-        .par_iter()
+        .par_chunks(BLOCK)
         .enumerate()
-        .with_min_len(BLOCK)
-        .filter(|&(_, &u)| u >= floor)
-        .filter(|&(row, _)| {
-            let tight = temporal_hit(params, memory, steps, row, |c, j| {
-                (
-                    side.pair_bounds(memory, &codes, kernel, c, j).1,
-                    side.scenes[j].compatibility(memory.scene(c)),
-                )
-            });
-            tight.score >= floor
+        .flat_map_iter(|(b, block)| {
+            let first = b * BLOCK;
+            let mut found = Vec::new();
+            for (i, &u) in block.iter().enumerate() {
+                if u >= floor {
+                    let row = first + i;
+                    let tight = temporal_hit(params, memory, steps, row, |c, j| {
+                        (
+                            side.pair_bounds(memory, &codes, kernel, c, j).1,
+                            side.scenes[j].compatibility(memory.scene(c)),
+                        )
+                    });
+                    if tight.score >= floor {
+                        found.push(side.exact_hit(params, memory, row));
+                    }
+                }
+            }
+            found
         })
-        .map(|(row, _)| side.exact_hit(params, memory, row))
         .collect();
     top_k(&mut hits, k);
 
     // The null model's sample: the eligible rows whose key's tag the
     // stride keeps (the same rows whatever their order), scored exactly.
-    let stride = NullModel::stride(eligible_count);
+    let sampler = Sampler::new(NullModel::stride(eligible_count));
     let sample_rows: Vec<usize> = loose
-        .par_iter()
+        .par_chunks(BLOCK)
         .enumerate()
-        .with_min_len(BLOCK)
-        .filter(|&(row, u)| !u.is_nan() && NullModel::sampled(memory.sample_tag(row), stride))
-        .map(|(row, _)| row)
+        .flat_map_iter(|(b, block)| {
+            let first = b * BLOCK;
+            block
+                .iter()
+                .enumerate()
+                .filter(|&(i, u)| !u.is_nan() && sampler.keeps(memory.sample_tag(first + i)))
+                .map(move |(i, _)| first + i)
+                .collect::<Vec<_>>()
+        })
         .collect();
     let location = sample_median(params, side, memory, &codes, kernel, &sample_rows);
     ScalScan {
@@ -566,6 +605,36 @@ mod tests {
                 &mask
             )
         );
+    }
+
+    #[test]
+    fn the_branchless_clip_is_clip01_bit_for_bit() {
+        let edges = [
+            f32::NAN,
+            -f32::NAN,
+            f32::INFINITY,
+            f32::NEG_INFINITY,
+            -0.0,
+            0.0,
+            f32::MIN_POSITIVE,
+            -f32::MIN_POSITIVE,
+            1e-45,
+            0.5,
+            1.0,
+            1.0 + f32::EPSILON,
+            -1.0,
+            3.0e38,
+        ];
+        for x in edges
+            .into_iter()
+            .chain((0..10_000).map(|i| (i as f32 - 5_000.0) * 3.1e-4))
+        {
+            assert_eq!(
+                clip01_branchless(x).to_bits(),
+                crate::vpr::clip01(x).to_bits(),
+                "{x}"
+            );
+        }
     }
 
     #[test]
