@@ -228,9 +228,10 @@ pub struct QueryDefaults {
     /// Scans that run at once, across all robots (at least 1); the rest
     /// wait their turn in arrival order.
     pub concurrent_scans: usize,
-    /// Longest a query waits for a scan slot, in milliseconds; a query
-    /// whose expected wait is longer (or longer than its gRPC deadline) is
-    /// refused at once with RESOURCE_EXHAUSTED and a `retry-after-ms` hint.
+    /// Longest a query may take from its arrival to its answer, in
+    /// milliseconds; a query expected to take longer (or longer than its
+    /// gRPC deadline) is refused at once with RESOURCE_EXHAUSTED and a
+    /// `retry-after-ms` hint.
     pub max_wait_ms: u64,
 }
 
@@ -240,7 +241,7 @@ impl Default for QueryDefaults {
             min_frame_gap: 100,
             pending_per_client: 1,
             scan_threads: 0,
-            concurrent_scans: 2,
+            concurrent_scans: 1,
             max_wait_ms: 250,
         }
     }

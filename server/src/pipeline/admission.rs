@@ -6,11 +6,12 @@
 //! more of them at once only makes each slower, and it holds the index's
 //! read lock longer, which the store writer must wait out before it can
 //! publish an insert. So at most `concurrent` scans run; the rest wait in
-//! arrival order. A query whose expected wait (the scans ahead of it times
-//! the recent scan time) is longer than it can wait (the configured budget,
-//! or the caller's deadline if shorter) is refused at once with
-//! RESOURCE_EXHAUSTED and a retry hint, rather than answered after its
-//! caller has given up.
+//! arrival order. A query whose expected answer time (the scans ahead of
+//! it times the recent scan time, plus its own scan), counted from its
+//! arrival, is longer than its budget (the configured one, or the caller's
+//! deadline if shorter) is refused at once with RESOURCE_EXHAUSTED and a
+//! retry hint, rather than answered after its caller has given up; so the
+//! queries that are admitted are answered within the budget.
 
 use std::sync::atomic::{AtomicU64, AtomicUsize, Ordering};
 use std::sync::Arc;
@@ -33,15 +34,16 @@ pub struct QueryAdmission {
 /// A query that may not wait for its scan.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, thiserror::Error)]
 #[error(
-    "server busy: {ahead} queries ahead, expected wait {} ms exceeds what this query can wait ({} ms); retry after {} ms",
+    "server busy: {ahead} queries ahead, expected answer in {} ms, more than this query has left ({} ms); retry after {} ms",
     expected.as_millis(), budget.as_millis(), expected.as_millis()
 )]
 pub struct Busy {
     /// Scans running or waiting when the query arrived.
     pub ahead: usize,
-    /// How long it would have waited.
+    /// How long it would have taken to answer: the wait for a slot and
+    /// the scan.
     pub expected: Duration,
-    /// How long it could wait.
+    /// What was left of its budget or deadline when it arrived here.
     pub budget: Duration,
 }
 
@@ -92,13 +94,25 @@ impl QueryAdmission {
         Duration::from_micros(self.scan_micros.load(Ordering::Relaxed) * rounds as u64)
     }
 
-    /// Waits for a scan slot, or refuses at once when the wait would be
-    /// longer than the budget or `deadline` (what the caller will wait).
-    pub async fn admit(self: &Arc<Self>, deadline: Option<Duration>) -> Result<ScanSlot, Busy> {
+    /// Waits for a scan slot, or refuses at once when the query could not
+    /// be answered in time: when the expected wait for a slot plus the
+    /// recent scan time is longer than what is left of the budget or of
+    /// `deadline` (what the caller will wait), both counted from the
+    /// query's arrival, `waited` ago (its turn behind its own robot's
+    /// previous query and its perception count too). So an admitted query
+    /// is expected to be answered within the budget, not to start by then.
+    pub async fn admit(
+        self: &Arc<Self>,
+        waited: Duration,
+        deadline: Option<Duration>,
+    ) -> Result<ScanSlot, Busy> {
         let running = self.concurrent - self.slots.available_permits();
         let ahead = running + self.waiting.load(Ordering::Relaxed);
-        let expected = self.expected_wait(ahead);
-        let budget = deadline.map_or(self.budget, |d| d.min(self.budget));
+        let scan = Duration::from_micros(self.scan_micros.load(Ordering::Relaxed));
+        let expected = self.expected_wait(ahead) + scan;
+        let budget = deadline
+            .map_or(self.budget, |d| d.min(self.budget))
+            .saturating_sub(waited);
         if expected > budget {
             return Err(Busy {
                 ahead,
@@ -171,39 +185,51 @@ mod tests {
     }
 
     #[tokio::test]
-    async fn queries_beyond_the_budget_are_refused_at_once() {
-        let admission = QueryAdmission::new(1, Duration::from_millis(100));
+    async fn queries_that_could_not_be_answered_within_the_budget_are_refused_at_once() {
+        let admission = QueryAdmission::new(1, Duration::from_millis(200));
         // Recent scans take 80 ms (the first time recorded is the mean).
         admission.record(Duration::from_millis(80));
-        let running = admission.admit(None).await.unwrap();
-        // One ahead: 80 ms to wait, within 100 ms.
+        let running = admission.admit(Duration::ZERO, None).await.unwrap();
+        // One ahead: 80 ms to wait and 80 to scan, within 200 ms.
         let second = {
             let a = admission.clone();
-            tokio::spawn(async move { a.admit(None).await.map(|_| ()) })
+            tokio::spawn(async move { a.admit(Duration::ZERO, None).await.map(|_| ()) })
         };
         tokio::task::yield_now().await;
         while admission.waiting.load(Ordering::Relaxed) == 0 {
             tokio::task::yield_now().await;
         }
-        // Two ahead: 160 ms > 100 ms: refused, saying why.
-        let busy = admission.admit(None).await.unwrap_err();
+        // Two ahead: 160 + 80 ms > 200 ms: refused, saying why.
+        let busy = admission.admit(Duration::ZERO, None).await.unwrap_err();
         assert_eq!(busy.ahead, 2);
-        assert!(busy.expected >= Duration::from_millis(150), "{busy:?}");
+        assert!(busy.expected >= Duration::from_millis(230), "{busy:?}");
         assert!(busy.to_string().contains("retry after"));
         // Two near-instant scans bring the mean to 45 ms; a caller with a
-        // 20 ms deadline is refused even one ahead.
+        // 20 ms deadline is refused even with nothing ahead, and so is one
+        // that already spent 190 ms of the budget waiting for its turn.
         drop(running);
         second.await.unwrap().unwrap();
-        let running = admission.admit(None).await.unwrap();
         let short = admission
-            .admit(Some(Duration::from_millis(20)))
+            .admit(Duration::ZERO, Some(Duration::from_millis(20)))
             .await
             .unwrap_err();
         assert_eq!(short.budget, Duration::from_millis(20));
-        drop(running);
+        let late = admission
+            .admit(Duration::from_millis(190), None)
+            .await
+            .unwrap_err();
+        assert_eq!(late.budget, Duration::from_millis(10));
+        assert!(admission
+            .admit(Duration::from_millis(100), None)
+            .await
+            .is_ok());
         // The waiting count returns to zero when a waiter gives up.
-        let hold = admission.admit(None).await.unwrap();
-        let gave_up = tokio::time::timeout(Duration::from_millis(10), admission.admit(None)).await;
+        let hold = admission.admit(Duration::ZERO, None).await.unwrap();
+        let gave_up = tokio::time::timeout(
+            Duration::from_millis(10),
+            admission.admit(Duration::ZERO, None),
+        )
+        .await;
         assert!(gave_up.is_err());
         assert_eq!(admission.waiting.load(Ordering::Relaxed), 0);
         drop(hold);

@@ -254,11 +254,14 @@ impl Pipeline {
             spec.observation = Some(Observation::Features(features));
             perception_timings = timings;
         }
-        let left = deadline.map(|d| d.saturating_sub(arrived.elapsed()));
-        let scan_slot = self.admission.admit(left).await.inspect_err(|busy| {
-            tracing::debug!(%busy, "query refused");
-            metrics::QUERIES_REFUSED.with_label_values(&[kind]).inc();
-        })?;
+        let scan_slot = self
+            .admission
+            .admit(arrived.elapsed(), deadline)
+            .await
+            .inspect_err(|busy| {
+                tracing::debug!(%busy, "query refused");
+                metrics::QUERIES_REFUSED.with_label_values(&[kind]).inc();
+            })?;
         let index = self.store.index_handle();
         let params = self.params.clone();
         let mut outcome = tokio::task::spawn_blocking(move || {

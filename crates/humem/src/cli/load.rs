@@ -48,6 +48,14 @@ pub struct LoadArgs {
     /// Descriptor length of the synthetic features.
     #[arg(long, default_value_t = 256)]
     pub dim: usize,
+    /// How synthetic descriptors are made: `places` (each robot passes
+    /// places in runs of 4 keyframes, a descriptor is its place's centre
+    /// plus noise, as `humem bench scan` makes them) or `drift` (a sinusoid
+    /// whose phase drifts and repeats every 200 keyframes: every descriptor
+    /// lies in one plane and about one in 16 of a fleet's is an exact copy,
+    /// a worst case for the compressed scan's bounds).
+    #[arg(long, value_enum, default_value_t = Descriptors::Places)]
+    pub descriptors: Descriptors,
     /// Queries carry the frame's content (as a relocalisation would) instead
     /// of naming the stored keyframe, so each one runs the models too.
     #[arg(long)]
@@ -100,10 +108,73 @@ struct Tallies {
     query: Arc<Mutex<Tally>>,
 }
 
+/// How synthetic descriptors are made (`--descriptors`).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, clap::ValueEnum)]
+pub enum Descriptors {
+    /// Place centres plus noise, unit length.
+    Places,
+    /// A drifting sinusoid (the generator before `places`).
+    Drift,
+}
+
+/// Distinct places of the `places` descriptors.
+const PLACES: u64 = 5_000;
+
+/// A xorshift generator, seeded: the same place has the same centre in
+/// every robot.
+struct Rng(u64);
+
+impl Rng {
+    fn new(seed: u64) -> Rng {
+        Rng(seed.wrapping_mul(0x9E37_79B9_7F4A_7C15) | 1)
+    }
+
+    fn next(&mut self) -> u64 {
+        self.0 ^= self.0 << 13;
+        self.0 ^= self.0 >> 7;
+        self.0 ^= self.0 << 17;
+        self.0
+    }
+
+    /// Uniform in [−0.5, 0.5).
+    fn centred(&mut self) -> f32 {
+        (self.next() >> 40) as f32 / (1u64 << 24) as f32 - 0.5
+    }
+}
+
+impl Descriptors {
+    /// Robot `robot`'s descriptor at keyframe `tick`.
+    fn make(self, dim: usize, robot: usize, tick: u64) -> Vec<f32> {
+        match self {
+            Descriptors::Drift => {
+                // A slowly drifting descriptor: a robot revisits what it saw.
+                let phase = (tick % 200) as f32 * 0.03 + robot as f32;
+                (0..dim).map(|i| (phase + i as f32 * 0.37).sin()).collect()
+            }
+            Descriptors::Places => {
+                let place = Rng::new(tick / 4 * 31 + robot as u64).next() % PLACES;
+                let mut centre = Rng::new(place + 7);
+                let mut noise = Rng::new((robot as u64) << 40 ^ tick ^ 0x5eed);
+                let mut v: Vec<f32> = (0..dim)
+                    .map(|_| centre.centred() + 0.6 * noise.centred())
+                    .collect();
+                let norm = v
+                    .iter()
+                    .map(|x| x * x)
+                    .sum::<f32>()
+                    .sqrt()
+                    .max(f32::MIN_POSITIVE);
+                v.iter_mut().for_each(|x| *x /= norm);
+                v
+            }
+        }
+    }
+}
+
 /// What a robot sends at each tick.
 enum Content {
     Images(Arc<Vec<Vec<u8>>>),
-    Synthetic(usize),
+    Synthetic(usize, Descriptors),
 }
 
 impl Content {
@@ -116,12 +187,9 @@ impl Content {
                     ..Default::default()
                 })
             }
-            Content::Synthetic(dim) => {
-                // A slowly drifting descriptor: a robot revisits what it saw.
-                let phase = (tick % 200) as f32 * 0.03 + robot as f32;
-                let descriptor = (0..*dim).map(|i| (phase + i as f32 * 0.37).sin()).collect();
+            Content::Synthetic(dim, descriptors) => {
                 proto::keyframe::Content::Features(proto::Features {
-                    global_descriptor: descriptor,
+                    global_descriptor: descriptors.make(*dim, robot, tick),
                     ..Default::default()
                 })
             }
@@ -267,7 +335,7 @@ fn peak_memory_kib(pid: u32) -> Option<u64> {
 pub async fn run(args: LoadArgs) -> anyhow::Result<()> {
     let content = Arc::new(match &args.images {
         Some(dir) => Content::Images(Arc::new(load_images(dir)?)),
-        None => Content::Synthetic(args.dim.max(1)),
+        None => Content::Synthetic(args.dim.max(1), args.descriptors),
     });
     let channel = humem_server::client::channel(&args.server, &args.tls).await?;
     let client = PlaceRecognitionClient::new(channel).max_encoding_message_size(64 << 20);
@@ -282,10 +350,17 @@ pub async fn run(args: LoadArgs) -> anyhow::Result<()> {
         args.rate,
         args.duration,
         args.server,
-        if args.images.is_some() {
-            "images"
-        } else {
-            "synthetic features"
+        match (&args.images, args.descriptors) {
+            (Some(_), _) => "images".to_string(),
+            (None, d) => format!(
+                "synthetic {}-d features, {}",
+                args.dim,
+                if d == Descriptors::Places {
+                    "places"
+                } else {
+                    "drift"
+                }
+            ),
         }
     );
     let started = Instant::now();
