@@ -6,9 +6,9 @@
 //! more of them at once only makes each slower, and it holds the index's
 //! read lock longer, which the store writer must wait out before it can
 //! publish an insert. So at most `concurrent` scans run; the rest wait in
-//! arrival order. A query whose expected answer time (the scans ahead of
-//! it times the recent scan time, plus its own scan), counted from its
-//! arrival, is longer than its budget (the configured one, or the caller's
+//! arrival order. A query that must wait and whose expected answer time
+//! (the scans ahead of it times the recent scan time, plus its own scan),
+//! counted from its arrival, is longer than its budget (the configured one, or the caller's
 //! deadline if shorter) is refused at once with RESOURCE_EXHAUSTED and a
 //! retry hint, rather than answered after its caller has given up; so the
 //! queries that are admitted are answered within the budget.
@@ -94,13 +94,14 @@ impl QueryAdmission {
         Duration::from_micros(self.scan_micros.load(Ordering::Relaxed) * rounds as u64)
     }
 
-    /// Waits for a scan slot, or refuses at once when the query could not
-    /// be answered in time: when the expected wait for a slot plus the
-    /// recent scan time is longer than what is left of the budget or of
-    /// `deadline` (what the caller will wait), both counted from the
-    /// query's arrival, `waited` ago (its turn behind its own robot's
-    /// previous query and its perception count too). So an admitted query
-    /// is expected to be answered within the budget, not to start by then.
+    /// Waits for a scan slot, or refuses at once when the query would have
+    /// to wait for one and could not be answered in time: when the
+    /// expected wait plus the recent scan time is longer than what is left
+    /// of the budget or of `deadline` (what the caller will wait), both
+    /// counted from the query's arrival, `waited` ago (its turn behind its
+    /// own robot's previous query and its perception count too). So an
+    /// admitted query is expected to be answered within the budget, not to
+    /// start by then. A query that finds a slot free always runs.
     pub async fn admit(
         self: &Arc<Self>,
         waited: Duration,
@@ -109,11 +110,14 @@ impl QueryAdmission {
         let running = self.concurrent - self.slots.available_permits();
         let ahead = running + self.waiting.load(Ordering::Relaxed);
         let scan = Duration::from_micros(self.scan_micros.load(Ordering::Relaxed));
-        let expected = self.expected_wait(ahead) + scan;
+        let wait = self.expected_wait(ahead);
+        let expected = wait + scan;
         let budget = deadline
             .map_or(self.budget, |d| d.min(self.budget))
             .saturating_sub(waited);
-        if expected > budget {
+        // A free slot is always taken: refusing there would refuse every
+        // query of a store whose scan alone outlasts the budget.
+        if !wait.is_zero() && expected > budget {
             return Err(Busy {
                 ahead,
                 expected,
@@ -204,11 +208,13 @@ mod tests {
         assert_eq!(busy.ahead, 2);
         assert!(busy.expected >= Duration::from_millis(230), "{busy:?}");
         assert!(busy.to_string().contains("retry after"));
-        // Two near-instant scans bring the mean to 45 ms; a caller with a
-        // 20 ms deadline is refused even with nothing ahead, and so is one
-        // that already spent 190 ms of the budget waiting for its turn.
+        // Two near-instant scans bring the mean to 45 ms. With one scan
+        // running, a caller with a 20 ms deadline is refused, and so is
+        // one that already spent 190 ms of the budget waiting for its
+        // turn; with the slot free, both run.
         drop(running);
         second.await.unwrap().unwrap();
+        let running = admission.admit(Duration::ZERO, None).await.unwrap();
         let short = admission
             .admit(Duration::ZERO, Some(Duration::from_millis(20)))
             .await
@@ -219,10 +225,19 @@ mod tests {
             .await
             .unwrap_err();
         assert_eq!(late.budget, Duration::from_millis(10));
-        assert!(admission
-            .admit(Duration::from_millis(100), None)
-            .await
-            .is_ok());
+        drop(running);
+        drop(
+            admission
+                .admit(Duration::ZERO, Some(Duration::from_millis(20)))
+                .await
+                .unwrap(),
+        );
+        drop(
+            admission
+                .admit(Duration::from_millis(190), None)
+                .await
+                .unwrap(),
+        );
         // The waiting count returns to zero when a waiter gives up.
         let hold = admission.admit(Duration::ZERO, None).await.unwrap();
         let gave_up = tokio::time::timeout(
