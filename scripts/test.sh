@@ -21,6 +21,10 @@ echo "== cargo clippy"
 cargo clippy --workspace --all-targets --locked -- -D warnings
 echo "== cargo test"
 cargo test --workspace --locked
+echo "== the compressed scan with each slower code kernel this CPU runs"
+for kernel in avx2 portable; do
+    HUMEM_CODE_KERNEL=$kernel cargo test --locked -p humem-core --lib vpr::
+done
 echo "== client-cpp (scripts/test-client-cpp.sh)"
 HUMEM_BIN=target/debug/humem scripts/test-client-cpp.sh
 echo "== deployment checks (scripts/check-deploy.sh)"

@@ -304,9 +304,10 @@ impl Config {
         }
         // HUMEM_CONFIG names the file, HUMEM_SERVER_URL, HUMEM_TOKEN and HUMEM_TLS_* are
         // for the clients, HUMEM_BIN names the binary for test scripts and
-        // HUMEM_ORT_PACKAGE is read by scripts/setup-models.sh: none is a
-        // setting.
-        const NOT_SETTINGS: [&str; 9] = [
+        // HUMEM_ORT_PACKAGE is read by scripts/setup-models.sh, and
+        // HUMEM_CODE_KERNEL picks a slower scan kernel for benchmarks
+        // (humem_core::vpr::kernels): none is a setting.
+        const NOT_SETTINGS: [&str; 10] = [
             "config",
             "server_url",
             "token",
@@ -316,6 +317,7 @@ impl Config {
             "tls_server_name",
             "bin",
             "ort_package",
+            "code_kernel",
         ];
         let env = Env::prefixed("HUMEM_")
             .filter(|key| {

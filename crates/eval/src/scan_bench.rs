@@ -324,8 +324,10 @@ pub fn scan(config: Config, args: ScanBench) -> anyhow::Result<()> {
         drop(index);
     }
     println!(
-        "SCAL-only query, {}-d, top {k}, median of {} queries; ratios against the exact f32 scan on 1 core",
-        args.dim, args.queries
+        "SCAL-only query, {}-d, top {k}, median of {} queries, code kernel {}; ratios against the exact f32 scan on 1 core",
+        args.dim,
+        args.queries,
+        humem_core::vpr::kernels::CodeKernel::detect().name()
     );
     println!(
         "| keyframes | exact f32 scan, 1 core | HuMem exact, 1 core | HuMem compressed, 1 core | HuMem compressed, {threads} cores | same answers as exact | resident per keyframe | store built in |"

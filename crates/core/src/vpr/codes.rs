@@ -38,18 +38,16 @@ struct RowCode {
     norm: f32,
 }
 
-/// Integer codes of `values`: the scale, the codes in `[−127, 127]`, the
+/// Integer codes of `values`: the scale, the codes in `[−levels, levels]`
+/// (`levels` ≤ 127), the
 /// residual norm `‖x − scale · code‖` and `‖x‖`, both rounded up. A row with
 /// a non-finite value gets an infinite residual (its bound is then
 /// infinite and it is always scored exactly).
-fn quantize(values: &[f32], mut put: impl FnMut(usize, i8)) -> RowCode {
+fn quantize(values: &[f32], levels: u8, mut put: impl FnMut(usize, i8)) -> RowCode {
     let max = values.iter().fold(0.0f32, |m, v| m.max(v.abs()));
     let finite = values.iter().all(|v| v.is_finite());
-    let scale = if finite && max > 0.0 {
-        max / 127.0
-    } else {
-        0.0
-    };
+    let top = f32::from(levels.min(127));
+    let scale = if finite && max > 0.0 { max / top } else { 0.0 };
     // Four partial sums each, so that the additions do not wait on one
     // another (this runs for every row loaded at start).
     let (mut residual, mut norm) = ([0.0f64; 4], [0.0f64; 4]);
@@ -58,7 +56,7 @@ fn quantize(values: &[f32], mut put: impl FnMut(usize, i8)) -> RowCode {
         // Round half away from zero; `as` truncates and saturates (a plain
         // `round` is a libm call on baseline x86-64).
         let scaled = v * inverse;
-        let c = (scaled + 0.5f32.copysign(scaled)).clamp(-127.0, 127.0) as i8;
+        let c = (scaled + 0.5f32.copysign(scaled)).clamp(-top, top) as i8;
         put(i, c);
         let error = f64::from(v) - f64::from(scale) * f64::from(c);
         residual[i % 4] += error * error;
@@ -106,7 +104,7 @@ impl CodeMatrix {
         matrix.rows = data
             .par_chunks_exact(dim)
             .zip(matrix.codes.par_chunks_exact_mut(matrix.stride))
-            .map(|(row, codes)| quantize(row, |i, c| codes[i] = (i16::from(c) + 128) as u8))
+            .map(|(row, codes)| quantize(row, 127, |i, c| codes[i] = (i16::from(c) + 128) as u8))
             .collect();
         matrix
     }
@@ -128,7 +126,7 @@ impl CodeMatrix {
 
     fn encode_into(&mut self, row: &[f32], start: usize) -> RowCode {
         let stored = &mut self.codes[start..start + row.len()];
-        quantize(row, |i, c| stored[i] = (i16::from(c) + 128) as u8)
+        quantize(row, 127, |i, c| stored[i] = (i16::from(c) + 128) as u8)
     }
 
     /// Moves the last row into row `i` and drops the last.
@@ -261,11 +259,13 @@ pub struct QueryCode {
 }
 
 impl QueryCode {
-    /// Codes of `query` for a matrix of `codes`' row length.
-    pub fn new(query: &[f32], matrix: &CodeMatrix) -> QueryCode {
+    /// Codes of `query` for a matrix of `codes`' row length, in the range
+    /// `kernel` multiplies without overflow
+    /// ([`CodeKernel::query_levels`]).
+    pub fn new(query: &[f32], matrix: &CodeMatrix, kernel: CodeKernel) -> QueryCode {
         let mut codes = vec![0i8; matrix.stride];
         let n = query.len().min(matrix.stride);
-        let code = quantize(&query[..n], |i, c| codes[i] = c);
+        let code = quantize(&query[..n], kernel.query_levels(), |i, c| codes[i] = c);
         let decoded: f64 = codes
             .iter()
             .map(|&c| (f64::from(code.scale) * f64::from(c)).powi(2))
@@ -322,9 +322,9 @@ mod tests {
             for r in &rows {
                 m.push(r);
             }
-            let q = QueryCode::new(&rows[7], &m);
             let mut worst = 0.0f32;
-            for kernel in [CodeKernel::detect(), CodeKernel::portable()] {
+            for kernel in CodeKernel::available() {
+                let q = QueryCode::new(&rows[7], &m, kernel);
                 for (i, r) in rows.iter().enumerate() {
                     let [(estimate, bound)] = m.dot_bounds(kernel, i, &[&q]);
                     let exact = dot(&rows[7], r);
@@ -346,7 +346,7 @@ mod tests {
         }
         m.swap_remove(1);
         m.set_row(0, &rows[2]);
-        let q = QueryCode::new(&rows[2], &m);
+        let q = QueryCode::new(&rows[2], &m, CodeKernel::detect());
         let kernel = CodeKernel::detect();
         let expected = [2, 4, 2, 3];
         assert_eq!(m.len(), 4);
@@ -363,7 +363,7 @@ mod tests {
         let mut m = CodeMatrix::new(4);
         m.push(&[0.0; 4]);
         m.push(&[f32::NAN, 1.0, 0.0, 0.0]);
-        let q = QueryCode::new(&[0.5, 0.5, 0.5, 0.5], &m);
+        let q = QueryCode::new(&[0.5, 0.5, 0.5, 0.5], &m, CodeKernel::detect());
         let kernel = CodeKernel::detect();
         let [(estimate, bound)] = m.dot_bounds(kernel, 0, &[&q]);
         assert_eq!(estimate, 0.0);
@@ -382,10 +382,12 @@ mod tests {
             for r in &rows {
                 m.push(r);
             }
-            let code = QueryCode::new(&q, &m);
-            for (i, r) in rows.iter().enumerate() {
-                let [(estimate, bound)] = m.dot_bounds(CodeKernel::detect(), i, &[&code]);
-                prop_assert!((dot(&q, r) - estimate).abs() <= bound);
+            for kernel in CodeKernel::available() {
+                let code = QueryCode::new(&q, &m, kernel);
+                for (i, r) in rows.iter().enumerate() {
+                    let [(estimate, bound)] = m.dot_bounds(kernel, i, &[&code]);
+                    prop_assert!((dot(&q, r) - estimate).abs() <= bound, "{kernel:?}");
+                }
             }
         }
     }

@@ -21,7 +21,7 @@
 //! [`ScanMode::Auto`] takes the compressed pass from
 //! [`COMPRESSED_MIN_ROWS`] rows, where the sample and the rescoring are
 //! small next to the rows it saves reading, on CPUs whose code kernel is
-//! faster than the f32 scan ([`CodeKernel::pays_off`]: AVX-512 VNNI today).
+//! faster than the f32 scan ([`CodeKernel::pays_off`]: AVX-512 VNNI or AVX2).
 //!
 //! Both passes split the rows into blocks that rayon runs on every core;
 //! each row's result depends only on the row, and ties order by row, so the
@@ -321,7 +321,7 @@ where
     let codes: Vec<QueryCode> = side
         .descriptors
         .iter()
-        .map(|q| QueryCode::new(q, matrix.codes()))
+        .map(|q| QueryCode::new(q, matrix.codes(), kernel))
         .collect();
     let steps = side.steps();
 
