@@ -2,10 +2,15 @@
 //!
 //! Changes arrive on a bounded queue (a full queue is reported at once, so
 //! callers push back instead of growing memory). The writer takes every
-//! change that is waiting, applies each to sled in order, flushes once, and
-//! only after the flush updates the in-memory index and answers the callers.
-//! One thread owns all writes, so sled and the index change in the same
-//! order and no change is computed from a stale view.
+//! change that is waiting, applies each to sled in order and flushes once;
+//! only after the flush is the group taken into the in-memory index and its
+//! callers answered. That last step is a second thread, the publisher,
+//! because it must wait for the index's write lock, which every running
+//! scan holds for reading: on its own thread that wait overlaps the next
+//! group's staging and flush instead of adding to every insert's latency.
+//! One thread owns all writes to sled and one all changes to the index,
+//! both in the same order, and no change is computed from a stale view
+//! (staging reads sled, never the index).
 
 use std::collections::HashSet;
 use std::sync::atomic::{AtomicU64, Ordering};
@@ -122,16 +127,25 @@ pub(super) fn spawn(
         let index = checkpoints.index.read();
         (index.dim(), index.len() as u64)
     };
+    let (publisher, groups) = std::sync::mpsc::sync_channel(PUBLISH_BACKLOG);
+    let stage = Publisher {
+        index: checkpoints.index.clone(),
+        applied: checkpoints.applied.clone(),
+        checkpoints: checkpoints.clone(),
+    };
     let writer = Writer {
         trees,
-        index: checkpoints.index.clone(),
+        publisher,
         dim,
         sequence: checkpoints.applied.load(Ordering::Acquire),
         keyframes,
-        applied: checkpoints.applied.clone(),
         checkpoints,
         observer: observer.clone(),
     };
+    std::thread::Builder::new()
+        .name("humem-store-publisher".into())
+        .spawn(move || stage.run(groups))
+        .expect("spawning the store publisher thread");
     std::thread::Builder::new()
         .name("humem-store-writer".into())
         .spawn(move || writer.run(receiver))
@@ -175,17 +189,96 @@ enum IndexChange {
 
 struct Writer {
     trees: Trees,
-    index: Arc<RwLock<Index>>,
+    /// Hands each flushed group to the [`Publisher`].
+    publisher: std::sync::mpsc::SyncSender<Published>,
     /// Descriptor length of the store; 0 until the first keyframe.
     dim: usize,
     /// The last write sequence used.
     sequence: u64,
     /// Keyframes in sled after the last staged change.
     keyframes: u64,
+    checkpoints: Arc<Checkpoints>,
+    observer: SharedObserver,
+}
+
+/// A group that is durable in sled, waiting to be published to the index.
+struct Published {
+    changes: Vec<IndexChange>,
+    answers: Vec<Answer>,
+    /// The last write sequence of the group.
+    sequence: u64,
+    /// Journal keys the group wrote.
+    journaled: u64,
+}
+
+/// Groups flushed but not yet published, at most: the writer flushes the
+/// next group while the publisher waits for the index, and blocks when
+/// this many are behind, so memory stays bounded.
+const PUBLISH_BACKLOG: usize = 2;
+
+/// The second stage of the writer: takes each flushed group, in order,
+/// into the in-memory index under its write lock, and only then answers
+/// its callers. Waiting for the write lock means waiting out the scans
+/// that hold the read lock; on its own thread, that wait overlaps the
+/// writer staging and flushing the next group instead of adding to it.
+struct Publisher {
+    index: Arc<RwLock<Index>>,
     /// The sequence the index reflects, published with each group.
     applied: Arc<AtomicU64>,
     checkpoints: Arc<Checkpoints>,
-    observer: SharedObserver,
+}
+
+impl Publisher {
+    fn run(self, groups: std::sync::mpsc::Receiver<Published>) {
+        for group in groups {
+            self.publish(group);
+        }
+    }
+
+    fn publish(&self, group: Published) {
+        let Published {
+            changes,
+            answers,
+            sequence,
+            journaled,
+        } = group;
+        let store_keyframes = {
+            let mut index = self.index.write();
+            for change in changes {
+                match change {
+                    IndexChange::Upsert(kf) => {
+                        index.upsert(kf);
+                    }
+                    IndexChange::Remove(key) => {
+                        index.remove(&key);
+                    }
+                    IndexChange::Move(key, pose, map) => {
+                        index.update_pose(&key, pose, map);
+                    }
+                }
+            }
+            self.applied.store(sequence, Ordering::Release);
+            index.len() as u64
+        };
+        self.checkpoints.journaled(journaled);
+        let counted = |outcome: Result<MutationOutcome, StoreError>| {
+            outcome.map(|mut o| {
+                o.store_keyframes = store_keyframes;
+                o
+            })
+        };
+        for answer in answers {
+            match answer {
+                Answer::Change(reply, outcome) => {
+                    let _ = reply.send(counted(outcome));
+                }
+                Answer::Log(reply, mut applied) => {
+                    applied.results = applied.results.into_iter().map(counted).collect();
+                    let _ = reply.send(applied);
+                }
+            }
+        }
+    }
 }
 
 impl Writer {
@@ -247,44 +340,16 @@ impl Writer {
             }
             return;
         }
-        let store_keyframes = {
-            let mut index = self.index.write();
-            for change in changes {
-                match change {
-                    IndexChange::Upsert(kf) => {
-                        index.upsert(kf);
-                    }
-                    IndexChange::Remove(key) => {
-                        index.remove(&key);
-                    }
-                    IndexChange::Move(key, pose, map) => {
-                        index.update_pose(&key, pose, map);
-                    }
-                }
-            }
-            self.applied.store(self.sequence, Ordering::Release);
-            index.len() as u64
+        let group = Published {
+            changes,
+            answers,
+            sequence: self.sequence,
+            journaled,
         };
-        self.checkpoints.journaled(journaled);
-        let counted = |outcome: Result<MutationOutcome, StoreError>| {
-            outcome.map(|mut o| {
-                o.store_keyframes = store_keyframes;
-                o
-            })
-        };
-        for answer in answers {
-            match answer {
-                Answer::Change(reply, outcome) => {
-                    let _ = reply.send(counted(outcome));
-                }
-                Answer::Log(reply, mut applied) => {
-                    applied.results = applied.results.into_iter().map(counted).collect();
-                    let _ = reply.send(applied);
-                }
-            }
+        if self.publisher.send(group).is_err() {
+            tracing::error!("the index publisher is gone");
         }
     }
-
     /// Stages log entries in order, each recording its position. An entry
     /// refused for what it is (a [`StoreError::is_refusal`]) is refused on
     /// every replica alike, so its position is recorded and the next one
