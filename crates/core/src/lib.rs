@@ -13,10 +13,13 @@
 //! - [`row_ids`]: interned robot and session ids, so the scan's eligibility
 //!   test compares integers;
 //! - [`observe`]: the hook through which queues report their depth and batch
-//!   sizes, so lower layers never read the server's metrics.
+//!   sizes, so lower layers never read the server's metrics;
+//! - [`synthetic`]: fleet-shaped synthetic descriptors for the benchmarks
+//!   and the load generator.
 
 pub mod index;
 pub mod keyframe;
 pub mod observe;
 pub mod row_ids;
+pub mod synthetic;
 pub mod vpr;

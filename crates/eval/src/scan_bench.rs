@@ -25,6 +25,7 @@ use anyhow::{ensure, Context};
 
 use humem_core::index::Index;
 use humem_core::keyframe::{Features, KeyframeKey, Pose, SceneClass, SemanticKeyframe, SessionKey};
+use humem_core::synthetic::{place_descriptor, place_of, Rng};
 use humem_core::vpr::kernels::dot_f32_wide;
 use humem_core::vpr::{KeyframeMemory, Layers, ScanMode, Scope, VprParams};
 use humem_server::config::Config;
@@ -46,27 +47,6 @@ pub struct ScanBench {
     /// Robots sharing the store.
     #[arg(long, default_value_t = 8)]
     pub robots: usize,
-}
-
-/// A xorshift generator: fast, seeded, good enough for synthetic vectors.
-struct Rng(u64);
-
-impl Rng {
-    fn new(seed: u64) -> Rng {
-        Rng(seed.wrapping_mul(0x9E37_79B9_7F4A_7C15) | 1)
-    }
-
-    fn next(&mut self) -> u64 {
-        self.0 ^= self.0 << 13;
-        self.0 ^= self.0 >> 7;
-        self.0 ^= self.0 << 17;
-        self.0
-    }
-
-    /// Uniform in [−0.5, 0.5).
-    fn centred(&mut self) -> f32 {
-        (self.next() >> 40) as f32 / (1u64 << 24) as f32 - 0.5
-    }
 }
 
 /// Keyframes per place visit, on average: a robot passes a place in a few
@@ -109,13 +89,8 @@ impl SyntheticFleet {
         let robot = i % self.robots;
         let step = (i / self.robots) as u64;
         // Each robot walks through places in runs of 4 keyframes.
-        let place = Rng::new(step / 4 * 31 + robot as u64).next() % self.places;
-        let mut centre = Rng::new(place + 7);
-        let mut descriptor: Vec<f32> = (0..self.dim)
-            .map(|_| centre.centred() + 0.6 * self.noise.centred())
-            .collect();
-        let norm = descriptor.iter().map(|v| v * v).sum::<f32>().sqrt();
-        descriptor.iter_mut().for_each(|v| *v /= norm);
+        let place = place_of(self.places, robot as u64, step);
+        let descriptor = place_descriptor(self.dim, place, &mut self.noise);
         SemanticKeyframe {
             key: KeyframeKey {
                 robot_id: format!("robot-{robot}"),

@@ -18,6 +18,7 @@ use anyhow::Context;
 use hdrhistogram::Histogram;
 use humem_server::client::Connection;
 
+use humem_core::synthetic::{place_descriptor, place_of, Rng};
 use humem_server::proto;
 use humem_server::proto::place_recognition_client::PlaceRecognitionClient;
 
@@ -120,28 +121,6 @@ pub enum Descriptors {
 /// Distinct places of the `places` descriptors.
 const PLACES: u64 = 5_000;
 
-/// A xorshift generator, seeded: the same place has the same centre in
-/// every robot.
-struct Rng(u64);
-
-impl Rng {
-    fn new(seed: u64) -> Rng {
-        Rng(seed.wrapping_mul(0x9E37_79B9_7F4A_7C15) | 1)
-    }
-
-    fn next(&mut self) -> u64 {
-        self.0 ^= self.0 << 13;
-        self.0 ^= self.0 >> 7;
-        self.0 ^= self.0 << 17;
-        self.0
-    }
-
-    /// Uniform in [−0.5, 0.5).
-    fn centred(&mut self) -> f32 {
-        (self.next() >> 40) as f32 / (1u64 << 24) as f32 - 0.5
-    }
-}
-
 impl Descriptors {
     /// Robot `robot`'s descriptor at keyframe `tick`.
     fn make(self, dim: usize, robot: usize, tick: u64) -> Vec<f32> {
@@ -152,20 +131,8 @@ impl Descriptors {
                 (0..dim).map(|i| (phase + i as f32 * 0.37).sin()).collect()
             }
             Descriptors::Places => {
-                let place = Rng::new(tick / 4 * 31 + robot as u64).next() % PLACES;
-                let mut centre = Rng::new(place + 7);
                 let mut noise = Rng::new((robot as u64) << 40 ^ tick ^ 0x5eed);
-                let mut v: Vec<f32> = (0..dim)
-                    .map(|_| centre.centred() + 0.6 * noise.centred())
-                    .collect();
-                let norm = v
-                    .iter()
-                    .map(|x| x * x)
-                    .sum::<f32>()
-                    .sqrt()
-                    .max(f32::MIN_POSITIVE);
-                v.iter_mut().for_each(|x| *x /= norm);
-                v
+                place_descriptor(dim, place_of(PLACES, robot as u64, tick), &mut noise)
             }
         }
     }
