@@ -126,9 +126,9 @@ impl CodeKernel {
             .all(|q| q.iter().all(|&c| c.unsigned_abs() <= self.query_levels())));
         match self.0 {
             #[cfg(target_arch = "x86_64")]
-            Kind::Avx512Vnni => vnni_dots_rows(rows, stride, queries, out),
-            #[cfg(target_arch = "x86_64")]
-            Kind::Avx2 => avx2_dots_rows(rows, stride, queries, out),
+            kind @ (Kind::Avx512Vnni | Kind::Avx2) => {
+                vector_dots_rows(kind, rows, stride, queries, out)
+            }
             _ => {
                 for (row, o) in rows.chunks_exact(stride).zip(out) {
                     *o = queries.map(|q| portable_code_dot(row, q));
@@ -155,24 +155,34 @@ impl CodeKernel {
     }
 }
 
-/// Calls the AVX2 kernel over a block of rows; only reachable through a
-/// [`CodeKernel`] that [`CodeKernel::available`] made.
+/// Calls a vector kernel over a block of rows; only reachable through a
+/// [`CodeKernel`] that [`CodeKernel::available`] made, which is what makes
+/// each call sound.
 #[cfg(target_arch = "x86_64")]
 #[allow(
     unsafe_code,
-    reason = "calling a #[target_feature] function needs unsafe; the feature was detected at run time"
+    reason = "calling a #[target_feature] function needs unsafe; the features were detected at run time"
 )]
-fn avx2_dots_rows<const Q: usize>(
+fn vector_dots_rows<const Q: usize>(
+    kind: Kind,
     rows: &[u8],
     stride: usize,
     queries: &[&[i8]; Q],
     out: &mut [[i32; Q]],
 ) {
-    // SAFETY: `Kind::Avx2` is private to this module and only made by
-    // `CodeKernel::available` after `is_x86_feature_detected!("avx2")`;
-    // the function has no other precondition (the query range only
-    // affects the result's exactness, which `dots_rows` documents).
-    unsafe { avx2::dots_rows(rows, stride, queries, out) }
+    match kind {
+        // SAFETY: `Kind::Avx512Vnni` is private to this module and only
+        // made by `CodeKernel::available` after `is_x86_feature_detected!`
+        // confirmed avx512f, avx512bw and avx512vnni; the function has no
+        // other precondition.
+        Kind::Avx512Vnni => unsafe { vnni::dots_rows(rows, stride, queries, out) },
+        // SAFETY: `Kind::Avx2` is only made by `CodeKernel::available`
+        // after `is_x86_feature_detected!("avx2")`; the function has no
+        // other precondition (the query range only affects the result's
+        // exactness, which `dots_rows` documents).
+        Kind::Avx2 => unsafe { avx2::dots_rows(rows, stride, queries, out) },
+        Kind::Portable => unreachable!("the portable kernel is not a vector kernel"),
+    }
 }
 
 #[cfg(target_arch = "x86_64")]
@@ -230,26 +240,6 @@ mod avx2 {
         }
         sums
     }
-}
-
-/// Calls the VNNI kernel over a block of rows; only reachable through a
-/// [`CodeKernel`] that [`CodeKernel::available`] made.
-#[cfg(target_arch = "x86_64")]
-#[allow(
-    unsafe_code,
-    reason = "calling a #[target_feature] function needs unsafe; the features were detected at run time"
-)]
-fn vnni_dots_rows<const Q: usize>(
-    rows: &[u8],
-    stride: usize,
-    queries: &[&[i8]; Q],
-    out: &mut [[i32; Q]],
-) {
-    // SAFETY: `Kind::Avx512Vnni` is private to this module and only made
-    // by `CodeKernel::available` after `is_x86_feature_detected!` confirmed
-    // avx512f, avx512bw and avx512vnni; the function has no other
-    // precondition.
-    unsafe { vnni::dots_rows(rows, stride, queries, out) }
 }
 
 #[cfg(target_arch = "x86_64")]
