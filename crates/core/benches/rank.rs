@@ -105,7 +105,7 @@ fn bench(c: &mut Criterion) {
                 let q = &history[0].descriptor;
                 let mut best = f32::MIN;
                 for row in 0..m.len() {
-                    best = best.max(vpr::dot(q, m.row(row)));
+                    best = best.max(vpr::dot(q, &m.row(row)));
                 }
                 black_box(best)
             })

@@ -209,8 +209,9 @@ impl Index {
         }
     }
 
-    /// Global descriptor of a row, [`Index::dim`] values.
-    pub fn descriptor(&self, row: usize) -> &[f32] {
+    /// Global descriptor of a row, [`Index::dim`] values (borrowed while
+    /// the descriptors are in memory, read from their file otherwise).
+    pub fn descriptor(&self, row: usize) -> std::borrow::Cow<'_, [f32]> {
         self.matrix.row(row)
     }
 
@@ -224,6 +225,21 @@ impl Index {
     /// The descriptor matrix, every row in row order.
     pub fn matrix(&self) -> &DescriptorMatrix {
         &self.matrix
+    }
+
+    /// Whether the f32 descriptors are in memory (see
+    /// [`Index::move_descriptors_to_file`]).
+    pub fn descriptors_in_memory(&self) -> bool {
+        self.matrix.in_memory()
+    }
+
+    /// Moves the f32 descriptors to an unnamed file in `dir` and frees
+    /// their memory (their codes stay; see
+    /// [`DescriptorMatrix::move_to_file`]). Rows added later go to the file
+    /// too, for as long as this index lives. Nothing changes while the
+    /// dimension is unknown.
+    pub fn move_descriptors_to_file(&mut self, dir: &std::path::Path) -> std::io::Result<()> {
+        self.matrix.move_to_file(dir)
     }
 
     /// Starts rebuilding an index of `rows` keyframes from a snapshot:

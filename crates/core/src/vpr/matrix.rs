@@ -10,19 +10,77 @@
 //! instructions, not in the order of additions, so results are the same).
 //!
 //! The matrix keeps the one-byte [`CodeMatrix`] of its rows in step with
-//! them, so that large stores can be scanned on the codes first.
+//! them, so that large stores can be scanned on the codes first; a store
+//! that is scanned on its codes reads few f32 rows per query, so those can
+//! move to a [`RowFile`] and out of the resident memory.
+
+use std::borrow::Cow;
+use std::io;
+use std::path::Path;
 
 use multiversion::multiversion;
 
 use crate::vpr::codes::CodeMatrix;
+use crate::vpr::row_file::RowFile;
 
 /// Row-major matrix of `len()` descriptors of dimension `dim()`.
-#[derive(Debug, Clone, PartialEq, Default)]
+///
+/// The rows are in memory until [`DescriptorMatrix::move_to_file`] moves
+/// them to a [`RowFile`]; the codes always stay in memory. Reading a row
+/// then reads the file, so [`DescriptorMatrix::row`] and
+/// [`DescriptorMatrix::rows`] hand out a copy instead of a borrow. The file
+/// stands in for memory: an I/O error on it panics with the error, as a
+/// failed allocation would abort (the store refuses inserts well before its
+/// disk is full, see `store.min_free_bytes`).
+#[derive(Debug, Default)]
 pub struct DescriptorMatrix {
     dim: usize,
     rows: usize,
-    data: Vec<f32>,
+    data: Rows,
     codes: CodeMatrix,
+}
+
+/// Where the f32 rows are.
+#[derive(Debug)]
+enum Rows {
+    Memory(Vec<f32>),
+    File(RowFile),
+}
+
+impl Default for Rows {
+    fn default() -> Self {
+        Rows::Memory(Vec::new())
+    }
+}
+
+/// Rows moved or copied per I/O call.
+const IO_ROWS: usize = 4096;
+
+/// Panics for a failed read or write of the row file (see
+/// [`DescriptorMatrix`]).
+fn row_file_failed(what: &str, error: io::Error) -> ! {
+    panic!("the descriptor row file failed to {what}: {error}")
+}
+
+impl Clone for DescriptorMatrix {
+    /// A copy in memory, wherever this matrix keeps its rows.
+    fn clone(&self) -> Self {
+        DescriptorMatrix {
+            dim: self.dim,
+            rows: self.rows,
+            data: Rows::Memory(self.rows(0, self.rows).into_owned()),
+            codes: self.codes.clone(),
+        }
+    }
+}
+
+impl PartialEq for DescriptorMatrix {
+    /// Same dimension and rows, wherever each keeps them.
+    fn eq(&self, other: &Self) -> bool {
+        self.dim == other.dim
+            && self.rows == other.rows
+            && self.rows(0, self.rows) == other.rows(0, other.rows)
+    }
 }
 
 impl DescriptorMatrix {
@@ -31,7 +89,7 @@ impl DescriptorMatrix {
         DescriptorMatrix {
             dim,
             rows: 0,
-            data: Vec::new(),
+            data: Rows::default(),
             codes: CodeMatrix::new(dim),
         }
     }
@@ -49,27 +107,58 @@ impl DescriptorMatrix {
         DescriptorMatrix {
             dim,
             rows: data.len() / dim,
-            data,
+            data: Rows::Memory(data),
             codes,
         }
     }
 
+    /// An empty matrix whose rows go to a new [`RowFile`] in `dir` from
+    /// the start (see [`DescriptorMatrix::move_to_file`]).
+    pub fn new_in_file(dim: usize, dir: &Path) -> io::Result<Self> {
+        Ok(DescriptorMatrix {
+            dim,
+            rows: 0,
+            data: Rows::File(RowFile::create_in(dir, dim)?),
+            codes: CodeMatrix::new(dim),
+        })
+    }
+
+    /// Appends whole rows, row-major, with their codes: one write when the
+    /// rows are in a file. Panics if `rows.len()` is not a multiple of
+    /// `dim()`.
+    pub fn extend(&mut self, rows: &[f32]) {
+        assert!(
+            self.dim > 0 && rows.len().is_multiple_of(self.dim),
+            "{} values are not rows of {}",
+            rows.len(),
+            self.dim
+        );
+        match &mut self.data {
+            Rows::Memory(data) => data.extend_from_slice(rows),
+            Rows::File(file) => file
+                .append(rows)
+                .unwrap_or_else(|e| row_file_failed("append rows", e)),
+        }
+        for row in rows.chunks_exact(self.dim) {
+            self.codes.push(row);
+        }
+        self.rows += rows.len() / self.dim;
+    }
+
     /// The matrix without the rows listed in `skip` (ascending), the
-    /// others in order.
+    /// others in order, in memory.
     pub fn without_rows(self, skip: &[usize]) -> Self {
         let mut skip = skip.iter().peekable();
-        let mut data = Vec::with_capacity(self.data.len());
-        for (i, row) in self.data.chunks_exact(self.dim).enumerate() {
-            if skip.next_if_eq(&&i).is_none() {
-                data.extend_from_slice(row);
+        let mut data = Vec::with_capacity((self.rows - skip.len()) * self.dim);
+        for first in (0..self.rows).step_by(IO_ROWS) {
+            let block = self.rows(first, IO_ROWS.min(self.rows - first));
+            for (i, row) in block.chunks_exact(self.dim).enumerate() {
+                if skip.next_if_eq(&&(first + i)).is_none() {
+                    data.extend_from_slice(row);
+                }
             }
         }
         DescriptorMatrix::from_rows(self.dim, data)
-    }
-
-    /// All rows, row-major: `len() * dim()` values.
-    pub fn as_slice(&self) -> &[f32] {
-        &self.data
     }
 
     /// Descriptor dimension `d`.
@@ -87,27 +176,84 @@ impl DescriptorMatrix {
         self.rows == 0
     }
 
+    /// Whether the f32 rows are in memory (not moved to a file).
+    pub fn in_memory(&self) -> bool {
+        matches!(self.data, Rows::Memory(_))
+    }
+
+    /// Moves the f32 rows to an unnamed [`RowFile`] in `dir` and frees
+    /// their memory; rows added later go to the file too. Nothing changes
+    /// if they are in a file already, while the dimension is unknown (0),
+    /// or on an error.
+    pub fn move_to_file(&mut self, dir: &Path) -> io::Result<()> {
+        let Rows::Memory(data) = &mut self.data else {
+            return Ok(());
+        };
+        if self.dim == 0 {
+            return Ok(());
+        }
+        let mut file = RowFile::create_in(dir, self.dim)?;
+        for block in data.chunks(IO_ROWS * self.dim) {
+            file.append(block)?;
+        }
+        self.data = Rows::File(file);
+        Ok(())
+    }
+
     /// Appends a row and returns its index. Panics if `row.len() != dim()`
     /// (callers validate descriptors first).
     pub fn push(&mut self, row: &[f32]) -> usize {
         assert_eq!(row.len(), self.dim, "descriptor dimension mismatch");
-        self.data.extend_from_slice(row);
+        match &mut self.data {
+            Rows::Memory(data) => data.extend_from_slice(row),
+            Rows::File(file) => file
+                .append(row)
+                .unwrap_or_else(|e| row_file_failed("append a row", e)),
+        }
         self.codes.push(row);
         self.rows += 1;
         self.rows - 1
     }
 
-    /// Row `i`. Panics if out of range.
-    pub fn row(&self, i: usize) -> &[f32] {
+    /// Row `i`: borrowed when in memory, read when in a file. Panics if out
+    /// of range.
+    pub fn row(&self, i: usize) -> Cow<'_, [f32]> {
         assert!(i < self.rows, "row {i} out of range");
-        &self.data[i * self.dim..(i + 1) * self.dim]
+        self.rows(i, 1)
+    }
+
+    /// `count` rows from row `first` on, row-major: borrowed when in
+    /// memory, read in one call when in a file. Panics if out of range.
+    pub fn rows(&self, first: usize, count: usize) -> Cow<'_, [f32]> {
+        assert!(
+            first + count <= self.rows,
+            "rows {first}..{} out of range",
+            first + count
+        );
+        let range = first * self.dim..(first + count) * self.dim;
+        match &self.data {
+            Rows::Memory(data) => Cow::Borrowed(&data[range]),
+            Rows::File(file) => {
+                let mut out = vec![0.0; range.len()];
+                if !out.is_empty() {
+                    file.read(first, &mut out)
+                        .unwrap_or_else(|e| row_file_failed("read rows", e));
+                }
+                Cow::Owned(out)
+            }
+        }
     }
 
     /// Overwrites row `i`. Panics if out of range or on a dimension mismatch.
     pub fn set_row(&mut self, i: usize, row: &[f32]) {
         assert!(i < self.rows, "row {i} out of range");
         assert_eq!(row.len(), self.dim, "descriptor dimension mismatch");
-        self.data[i * self.dim..(i + 1) * self.dim].copy_from_slice(row);
+        match &mut self.data {
+            Rows::Memory(data) => data[i * self.dim..(i + 1) * self.dim].copy_from_slice(row),
+            Rows::File(file) => file
+                .write(i, row)
+                .unwrap_or_else(|e| row_file_failed("write a row", e)),
+        }
         self.codes.set_row(i, row);
     }
 
@@ -121,18 +267,38 @@ impl DescriptorMatrix {
     pub fn swap_remove(&mut self, i: usize) {
         assert!(i < self.rows, "row {i} out of range");
         let last = self.rows - 1;
-        if i != last {
-            let (head, tail) = self.data.split_at_mut(last * self.dim);
-            head[i * self.dim..(i + 1) * self.dim].copy_from_slice(tail);
+        match &mut self.data {
+            Rows::Memory(data) => {
+                if i != last {
+                    let (head, tail) = data.split_at_mut(last * self.dim);
+                    head[i * self.dim..(i + 1) * self.dim].copy_from_slice(tail);
+                }
+                data.truncate(last * self.dim);
+            }
+            Rows::File(file) => {
+                let moved = (|| {
+                    if i != last {
+                        let mut row = vec![0.0; self.dim];
+                        file.read(last, &mut row)?;
+                        file.write(i, &row)?;
+                    }
+                    file.truncate(last)
+                })();
+                moved.unwrap_or_else(|e| row_file_failed("move a row", e));
+            }
         }
-        self.data.truncate(last * self.dim);
         self.codes.swap_remove(i);
         self.rows = last;
     }
 
-    /// Removes every row, keeping the dimension and the allocation.
+    /// Removes every row, keeping the dimension and where the rows live.
     pub fn clear(&mut self) {
-        self.data.clear();
+        match &mut self.data {
+            Rows::Memory(data) => data.clear(),
+            Rows::File(file) => file
+                .truncate(0)
+                .unwrap_or_else(|e| row_file_failed("truncate", e)),
+        }
         self.codes.clear();
         self.rows = 0;
     }
@@ -228,9 +394,9 @@ mod tests {
         assert_eq!(m.push(&[4.0, 5.0, 6.0]), 1);
         assert_eq!(m.len(), 2);
         assert_eq!(m.dim(), 3);
-        assert_eq!(m.row(1), &[4.0, 5.0, 6.0]);
+        assert_eq!(&*m.row(1), &[4.0, 5.0, 6.0]);
         m.set_row(0, &[7.0, 8.0, 9.0]);
-        assert_eq!(m.row(0), &[7.0, 8.0, 9.0]);
+        assert_eq!(&*m.row(0), &[7.0, 8.0, 9.0]);
     }
 
     #[test]
@@ -241,16 +407,52 @@ mod tests {
         }
         m.swap_remove(1);
         assert_eq!(m.len(), 3);
-        assert_eq!(m.row(0), &[0.0, 10.0]);
-        assert_eq!(m.row(1), &[3.0, 13.0]);
-        assert_eq!(m.row(2), &[2.0, 12.0]);
+        assert_eq!(&*m.row(0), &[0.0, 10.0]);
+        assert_eq!(&*m.row(1), &[3.0, 13.0]);
+        assert_eq!(&*m.row(2), &[2.0, 12.0]);
         // Removing the last row just truncates.
         m.swap_remove(2);
         assert_eq!(m.len(), 2);
-        assert_eq!(m.row(1), &[3.0, 13.0]);
+        assert_eq!(&*m.row(1), &[3.0, 13.0]);
         m.clear();
         assert!(m.is_empty());
         assert_eq!(m.dim(), 2);
+    }
+
+    /// The same changes on a matrix in memory and one in a row file.
+    #[test]
+    fn rows_in_a_file_behave_as_rows_in_memory() {
+        let dir = tempfile::tempdir().unwrap();
+        let mut memory = DescriptorMatrix::new(3);
+        let mut file = DescriptorMatrix::new(3);
+        for i in 0..5 {
+            let row = [i as f32, 1.0, -(i as f32)];
+            memory.push(&row);
+            file.push(&row);
+        }
+        file.move_to_file(dir.path()).unwrap();
+        assert!(!file.in_memory() && memory.in_memory());
+        assert_eq!(file, memory);
+        let mut streamed = DescriptorMatrix::new_in_file(3, dir.path()).unwrap();
+        streamed.extend(&memory.rows(0, 2));
+        streamed.extend(&memory.rows(2, 3));
+        assert_eq!(streamed, memory);
+        assert_eq!(streamed.codes(), memory.codes());
+        for m in [&mut memory, &mut file] {
+            m.push(&[9.0, 9.0, 9.0]);
+            m.set_row(1, &[7.0, 8.0, 9.0]);
+            m.swap_remove(0);
+            m.swap_remove(4);
+        }
+        assert_eq!(file, memory);
+        assert_eq!(file.codes(), memory.codes());
+        assert_eq!(&*file.row(0), &[9.0, 9.0, 9.0]);
+        assert_eq!(&*file.rows(1, 2), &*memory.rows(1, 2));
+        assert!(file.clone().in_memory(), "a clone is in memory");
+        let kept = file.without_rows(&[0, 2]);
+        assert_eq!(&*kept.rows(0, 2), &[7.0, 8.0, 9.0, 3.0, 1.0, -3.0]);
+        memory.clear();
+        assert!(memory.is_empty());
     }
 
     #[test]

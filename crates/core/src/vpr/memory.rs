@@ -68,6 +68,12 @@ impl VecMemory {
         row
     }
 
+    /// Moves the f32 descriptors to a file in `dir`, as a large store's
+    /// index does (see [`DescriptorMatrix::move_to_file`]).
+    pub fn move_descriptors_to_file(&mut self, dir: &std::path::Path) -> std::io::Result<()> {
+        self.descriptors.move_to_file(dir)
+    }
+
     /// The features stored at `row`.
     pub fn features(&self, row: usize) -> &Features {
         &self.features[row]

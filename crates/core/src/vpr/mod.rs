@@ -19,7 +19,8 @@
 //! Supporting modules: [`params`] (every constant, configurable),
 //! [`eligibility`] (which stored keyframes may be proposed), [`matrix`] (the
 //! contiguous descriptor matrix the scan runs over), [`codes`] (its one-byte
-//! codes with error bounds), [`kernels`] (the SIMD inner loops), [`scan`]
+//! codes with error bounds), [`kernels`] (the SIMD inner loops), [`row_file`] (where the f32
+//! rows go when they leave memory), [`scan`]
 //! (SCAL's pass over the store, exact or on the codes, on every core),
 //! [`memory`] (the view of
 //! the store that ranking needs), [`text`] (string similarity and
@@ -39,6 +40,7 @@ pub mod ogtl;
 pub mod osrl;
 pub mod params;
 pub mod rank;
+pub mod row_file;
 pub mod scal;
 pub mod scan;
 pub mod text;

@@ -224,7 +224,7 @@ mod tests {
         let mut c_row = Some(row);
         for (j, q) in history.iter().enumerate().take(params.alpha.len()) {
             let Some(c) = c_row else { break };
-            let s_e = cosine(&q.descriptor, m.descriptors().row(c));
+            let s_e = cosine(&q.descriptor, &m.descriptors().row(c));
             let c_cat = scene_compatibility(&q.scene, m.scene(c));
             let s_tilde = modulated(s_e, c_cat, params.lambda_c);
             if j == 0 {

@@ -86,15 +86,23 @@ where
     }
     let side = QuerySide::new(params, &query.history);
     let rows = memory.descriptors().len();
-    let compressed = match params.scan {
-        ScanMode::Auto => rows >= COMPRESSED_MIN_ROWS && CodeKernel::detect().pays_off(),
-        ScanMode::Exact => false,
-        ScanMode::Compressed => true,
-    };
-    if compressed {
+    if codes_first_from(params.scan).is_some_and(|from| rows >= from) {
         compressed_scan(params, &side, memory, eligible)
     } else {
         exact_scan(params, &side, memory, eligible)
+    }
+}
+
+/// The fewest stored rows from which `mode` scans the codes first on this
+/// CPU (None: never). From there on a query reads few f32 rows, which is
+/// what lets a large store keep them out of memory.
+pub fn codes_first_from(mode: ScanMode) -> Option<usize> {
+    match mode {
+        ScanMode::Auto => CodeKernel::detect()
+            .pays_off()
+            .then_some(COMPRESSED_MIN_ROWS),
+        ScanMode::Exact => None,
+        ScanMode::Compressed => Some(0),
     }
 }
 
@@ -151,9 +159,13 @@ impl<'a> QuerySide<'a> {
     }
 
     /// `s_e(Q_{t−j}, row)` for every step, from one fused read of the f32
-    /// row (0 beyond the query's history).
-    fn exact_row<M: KeyframeMemory + ?Sized>(&self, memory: &M, row: usize) -> [f32; STEPS] {
-        let r = memory.descriptors().row(row);
+    /// row `r` (0 beyond the query's history).
+    fn exact_row<M: KeyframeMemory + ?Sized>(
+        &self,
+        memory: &M,
+        row: usize,
+        r: &[f32],
+    ) -> [f32; STEPS] {
         let q = &self.descriptors;
         let dots = match self.steps() {
             0 => [0.0; STEPS],
@@ -173,7 +185,7 @@ impl<'a> QuerySide<'a> {
     /// `s_e(Q_{t−j}, row)` of one step, exactly as [`QuerySide::exact_row`]
     /// computes it.
     fn exact_pair<M: KeyframeMemory + ?Sized>(&self, memory: &M, row: usize, j: usize) -> f32 {
-        let d = dot(self.descriptors[j], memory.descriptors().row(row));
+        let d = dot(self.descriptors[j], &memory.descriptors().row(row));
         self.fused(memory, row, j, d)
     }
 
@@ -283,12 +295,22 @@ where
     M: KeyframeMemory + ?Sized,
     E: Fn(usize) -> bool + Sync + ?Sized,
 {
-    let rows = memory.descriptors().len();
-    let s_e: Vec<[f32; STEPS]> = (0..rows)
-        .into_par_iter()
-        .with_min_len(BLOCK)
-        .map(|r| side.exact_row(memory, r))
-        .collect();
+    let matrix = memory.descriptors();
+    let rows = matrix.len();
+    // Block by block, so that rows kept in a file are read in one call a
+    // block.
+    let mut s_e = vec![[0.0; STEPS]; rows];
+    s_e.par_chunks_mut(BLOCK).enumerate().for_each(|(b, out)| {
+        let first = b * BLOCK;
+        let block = matrix.rows(first, out.len());
+        for (i, (o, r)) in out
+            .iter_mut()
+            .zip(block.chunks_exact(matrix.dim()))
+            .enumerate()
+        {
+            *o = side.exact_row(memory, first + i, r);
+        }
+    });
     let mut hits: Vec<ScalHit> = (0..rows)
         .into_par_iter()
         .with_min_len(BLOCK)
@@ -649,6 +671,24 @@ mod tests {
         for mode in [ScanMode::Exact, ScanMode::Compressed] {
             let one = single.install(|| run(&params, mode, &history, &m, &[true]));
             assert_eq!(one, run(&params, mode, &history, &m, &[true]), "{mode:?}");
+        }
+    }
+
+    #[test]
+    fn rows_in_a_file_give_the_same_answers() {
+        let mut m = clustered(9_000, 32, 5);
+        let history: Vec<Features> = [20, 19, 18]
+            .iter()
+            .map(|&r| m.features(r).clone())
+            .collect();
+        let params = VprParams::default();
+        let mask = [true, true, false];
+        let exact = run(&params, ScanMode::Exact, &history, &m, &mask);
+        let dir = tempfile::tempdir().unwrap();
+        m.move_descriptors_to_file(dir.path()).unwrap();
+        assert!(!m.descriptors().in_memory());
+        for mode in [ScanMode::Exact, ScanMode::Compressed] {
+            assert_eq!(run(&params, mode, &history, &m, &mask), exact, "{mode:?}");
         }
     }
 
