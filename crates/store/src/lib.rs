@@ -25,6 +25,7 @@ pub mod disk;
 pub use checkpoint::SnapshotReport;
 pub mod codec;
 pub mod journal;
+mod placement;
 pub mod snapshot;
 mod writer;
 
@@ -205,6 +206,11 @@ pub struct StoreOptions {
     /// snapshots that would go below are refused (removals are not); 0:
     /// no reserve. See [`disk`].
     pub min_free_bytes: u64,
+    /// Keyframes from which the index's f32 descriptors leave memory for
+    /// an unnamed file in the store's directory (their one-byte codes stay
+    /// in memory); None: they stay in memory. Worth it for stores scanned
+    /// on their codes, which read few f32 rows a query.
+    pub descriptors_to_file_from: Option<usize>,
 }
 
 impl Default for StoreOptions {
@@ -214,6 +220,7 @@ impl Default for StoreOptions {
             queue_capacity: 1024,
             snapshot_every: DEFAULT_SNAPSHOT_EVERY,
             min_free_bytes: disk::DEFAULT_MIN_FREE_BYTES,
+            descriptors_to_file_from: None,
         }
     }
 }
@@ -308,6 +315,7 @@ impl Store {
             queue_capacity,
             snapshot_every,
             min_free_bytes,
+            descriptors_to_file_from,
         } = options;
         let db = sled::Config::new()
             .path(dir)
@@ -342,8 +350,12 @@ impl Store {
         let journal_tree = db.open_tree(journal::TREE)?;
         let store_id = journal::store_id(&meta)?;
         let sequence = journal::last_sequence(&journal_tree, &meta)?;
+        let placement = Arc::new(placement::DescriptorPlacement::new(
+            dir.to_path_buf(),
+            descriptors_to_file_from,
+        ));
         let (index, source, snapshot_sequence) = load_index(
-            dir,
+            &placement,
             &keyframes,
             &journal_tree,
             &meta,
@@ -398,6 +410,7 @@ impl Store {
                 journal: journal_tree,
             },
             checkpoints.clone(),
+            placement,
             queue_capacity,
             observer,
         );
@@ -477,9 +490,11 @@ impl Store {
 /// Loads the index: from the snapshot brought up to date by the journal
 /// when that is possible, else from every record in the tree. Returns the
 /// index, where it came from, and the sequence of the snapshot it was
-/// loaded from (none: rebuilt from the tree).
+/// loaded from (none: rebuilt from the tree). The store's directory is
+/// `placement`'s, and the descriptors leave memory as it says while they
+/// load, not after.
 fn load_index(
-    dir: &Path,
+    placement: &placement::DescriptorPlacement,
     keyframes: &sled::Tree,
     journal_tree: &sled::Tree,
     meta: &sled::Tree,
@@ -487,7 +502,15 @@ fn load_index(
     dim: usize,
     sequence: u64,
 ) -> Result<(Index, IndexSource, Option<u64>), StoreError> {
-    let reason = match from_snapshot(dir, keyframes, journal_tree, meta, store_id, dim, sequence) {
+    let reason = match from_snapshot(
+        placement,
+        keyframes,
+        journal_tree,
+        meta,
+        store_id,
+        dim,
+        sequence,
+    ) {
         Ok(Ok((index, replayed, snapshot_sequence))) => {
             return Ok((
                 index,
@@ -503,14 +526,18 @@ fn load_index(
         tracing::warn!(%reason, "index snapshot not used: rebuilding the index from the store");
     }
     let mut index = Index::new(dim);
-    for item in keyframes.iter() {
+    for (n, item) in keyframes.iter().enumerate() {
         let (key, value) = item?;
         let record = codec::decode_record(&value).map_err(|source| StoreError::Corrupt {
             key: key.to_vec(),
             source,
         })?;
         index.upsert(record);
+        if n % 4096 == 0 {
+            placement.apply(&mut index);
+        }
     }
+    placement.apply(&mut index);
     Ok((index, IndexSource::Tree { reason }, None))
 }
 
@@ -519,7 +546,7 @@ const NO_SNAPSHOT: &str = "no snapshot";
 /// The snapshot's index plus the journal's changes since, with the number
 /// of keys replayed and the snapshot's sequence; or why it cannot be used.
 fn from_snapshot(
-    dir: &Path,
+    placement: &placement::DescriptorPlacement,
     keyframes: &sled::Tree,
     journal_tree: &sled::Tree,
     meta: &sled::Tree,
@@ -527,7 +554,9 @@ fn from_snapshot(
     dim: usize,
     sequence: u64,
 ) -> Result<Result<(Index, usize, u64), String>, StoreError> {
-    let Some((header, mut index)) = snapshot::read(dir, store_id, dim)? else {
+    let Some((header, mut index)) =
+        snapshot::read(placement.dir(), store_id, dim, placement.from())?
+    else {
         return Ok(Err(NO_SNAPSHOT.into()));
     };
     let floor = journal::floor(meta)?;
@@ -570,6 +599,7 @@ fn from_snapshot(
             index.len()
         )));
     }
+    placement.apply(&mut index);
     Ok(Ok((index, pending.keys.len(), header.sequence)))
 }
 

@@ -8,11 +8,18 @@ use super::*;
 /// Opens `dir` with automatic snapshots off, so each test decides when
 /// one is written.
 fn open_manual(dir: &Path) -> Store {
+    open_manual_with(dir, None)
+}
+
+/// [`open_manual`], with the descriptors leaving memory from
+/// `descriptors_to_file_from` keyframes.
+fn open_manual_with(dir: &Path, descriptors_to_file_from: Option<usize>) -> Store {
     let deadline = Instant::now() + Duration::from_secs(5);
     loop {
         let options = StoreOptions {
             snapshot_every: 0,
             queue_capacity: 16,
+            descriptors_to_file_from,
             ..StoreOptions::default()
         };
         match Store::open_with(dir, options, humem_core::observe::unobserved()) {
@@ -128,6 +135,49 @@ async fn changes_after_the_snapshot_are_replayed_from_the_journal() {
     drop(store);
     assert_eq!(loaded, rebuilt_from_tree(dir.path()));
     assert!(loaded.iter().all(|(kf, _)| kf.key.robot_id != "b"));
+}
+
+#[tokio::test]
+async fn descriptors_in_a_file_keep_every_change_across_restarts() {
+    let dir = tempfile::tempdir().unwrap();
+    {
+        let store = open_manual_with(dir.path(), Some(10));
+        insert(&store, (0..8).map(|i| kf("a", "s", i, 0)).collect()).await;
+        assert!(store.index().descriptors_in_memory(), "below the threshold");
+        insert(&store, (8..30).map(|i| kf("a", "s", i, i / 10)).collect()).await;
+        assert!(
+            !store.index().descriptors_in_memory(),
+            "moved by the writer"
+        );
+        store.snapshot().unwrap();
+        let mut replaced = kf("a", "s", 4, 0);
+        replaced.features.descriptor = vec![0.5, 0.5, 0.5];
+        insert(&store, vec![replaced]).await;
+        let erase = Mutation::Erase {
+            session: session("a", "s"),
+            keyframe_ids: vec![0, 15, 29],
+        };
+        assert_eq!(store.apply(erase).await.unwrap().affected, 3);
+        let row = store.index().row_of(&kf("a", "s", 4, 0).key).unwrap();
+        assert_eq!(&*store.index().descriptor(row), &[0.5, 0.5, 0.5]);
+    }
+    // From the snapshot (streamed into a file) plus the journal, and from
+    // the tree: the same keyframes as an index in memory holds.
+    let store = open_manual_with(dir.path(), Some(10));
+    assert!(matches!(
+        store.opened().source,
+        IndexSource::Snapshot { .. }
+    ));
+    assert!(!store.index().descriptors_in_memory());
+    let loaded = contents(&store);
+    drop(store);
+    assert_eq!(loaded.len(), 27);
+    assert_eq!(loaded, rebuilt_from_tree(dir.path()));
+    std::fs::remove_file(snapshot::path(dir.path())).unwrap();
+    let store = open_manual_with(dir.path(), Some(10));
+    assert!(matches!(store.opened().source, IndexSource::Tree { .. }));
+    assert!(!store.index().descriptors_in_memory());
+    assert_eq!(contents(&store), loaded);
 }
 
 #[tokio::test]

@@ -219,8 +219,13 @@ pub(crate) fn write_in_chunks(
             let hi = next.min(index.len());
             let per_chunk = chunk_rows.unwrap_or(CHUNK_BYTES / (4 * dim.max(1))).max(1);
             let lo = hi.saturating_sub(per_chunk);
+            // One read of the chunk's rows (one call when they are in a
+            // file), taken last row first like the records.
+            let chunk = index.matrix().rows(lo, hi - lo);
+            for rows_back in chunk.chunks_exact(dim.max(1)).rev() {
+                descriptors.extend_from_slice(rows_back);
+            }
             for row in (lo..hi).rev() {
-                descriptors.extend_from_slice(index.descriptor(row));
                 let meta = index.meta(row);
                 records = postcard::to_extend(
                     &RowOut {
@@ -304,11 +309,15 @@ impl Unpublished {
 
 /// Reads the snapshot in `dir`, if there is one: its header and the index
 /// it holds. Checks magic, version, store id, dimension and checksum
-/// before anything is decoded.
+/// before anything is decoded. A snapshot of at least
+/// `descriptors_to_file_from` keyframes streams its descriptors into a row
+/// file in `dir` (see [`DescriptorMatrix::move_to_file`]) instead of
+/// memory, so that opening a large store never holds them all in memory.
 pub fn read(
     dir: &Path,
     store_id: u128,
     dim: usize,
+    descriptors_to_file_from: Option<usize>,
 ) -> Result<Option<(Header, Index)>, SnapshotError> {
     let file_path = path(dir);
     let io = |source| SnapshotError::Io {
@@ -372,6 +381,26 @@ pub fn read(
             decode_rows(&bytes, header.rows)
         });
         let matrix = (|| -> Result<_, SnapshotError> {
+            if header.rows == 0 {
+                return Ok(DescriptorMatrix::new(dim.max(header.dim)));
+            }
+            if descriptors_to_file_from.is_some_and(|from| header.rows >= from) {
+                let mut matrix = DescriptorMatrix::new_in_file(header.dim, dir).map_err(io)?;
+                let mut crc = crc32fast::Hasher::new();
+                let mut block = vec![0f32; STREAM_ROWS.min(header.rows) * header.dim];
+                for first in (0..header.rows).step_by(STREAM_ROWS) {
+                    let rows = STREAM_ROWS.min(header.rows - first);
+                    let block = &mut block[..rows * header.dim];
+                    let at = HEADER_BYTES as u64 + (first * header.dim * 4) as u64;
+                    read_at(&file, at, bytemuck::cast_slice_mut(block)).map_err(io)?;
+                    crc.update(bytemuck::cast_slice(block));
+                    matrix.extend(block);
+                }
+                if crc.finalize() != descriptors_crc {
+                    return Err(SnapshotError::Checksum);
+                }
+                return Ok(matrix);
+            }
             let mut data = vec![0f32; header.rows * header.dim];
             read_at(
                 &file,
@@ -382,17 +411,16 @@ pub fn read(
             if crc32fast::hash(bytemuck::cast_slice(&data)) != descriptors_crc {
                 return Err(SnapshotError::Checksum);
             }
-            Ok(if header.rows == 0 {
-                DescriptorMatrix::new(dim.max(header.dim))
-            } else {
-                DescriptorMatrix::from_rows(header.dim, data)
-            })
+            Ok(DescriptorMatrix::from_rows(header.dim, data))
         })();
         let restore = records.join().expect("the snapshot's row decoder panicked");
         (matrix, restore)
     });
     Ok(Some((header, restore?.finish(matrix?)?)))
 }
+
+/// Rows read per call when the descriptors stream into a row file.
+const STREAM_ROWS: usize = 16_384;
 
 /// Fills `buffer` from `file` at `offset`, leaving the file's own position
 /// alone, so two threads can read one file.

@@ -23,6 +23,7 @@ use tokio::sync::{mpsc, oneshot};
 use super::checkpoint::Checkpoints;
 use super::codec::{self, decode_record, encode_key, encode_record};
 use super::journal;
+use super::placement::DescriptorPlacement;
 use super::{
     Index, LogApplied, LogEntry, MapKey, Mutation, MutationOutcome, PoseUpdate, StoreError,
     META_DIM, META_LOG_POSITION,
@@ -118,6 +119,7 @@ impl WriterHandle {
 pub(super) fn spawn(
     trees: Trees,
     checkpoints: Arc<Checkpoints>,
+    placement: Arc<DescriptorPlacement>,
     capacity: usize,
     observer: SharedObserver,
 ) -> WriterHandle {
@@ -132,6 +134,7 @@ pub(super) fn spawn(
         index: checkpoints.index.clone(),
         applied: checkpoints.applied.clone(),
         checkpoints: checkpoints.clone(),
+        placement,
     };
     let writer = Writer {
         trees,
@@ -226,6 +229,8 @@ struct Publisher {
     /// The sequence the index reflects, published with each group.
     applied: Arc<AtomicU64>,
     checkpoints: Arc<Checkpoints>,
+    /// Moves the descriptors out of memory once the store is large.
+    placement: Arc<DescriptorPlacement>,
 }
 
 impl Publisher {
@@ -257,6 +262,7 @@ impl Publisher {
                     }
                 }
             }
+            self.placement.apply(&mut index);
             self.applied.store(sequence, Ordering::Release);
             index.len() as u64
         };
