@@ -197,6 +197,36 @@ pub struct StoreConfig {
     /// (erasing still works); 0: no reserve. sled does not survive running
     /// out of space, so keep this above a few `server.max_message_bytes`.
     pub min_free_bytes: u64,
+    /// Where the f32 descriptors live (their one-byte codes are always in
+    /// memory).
+    pub descriptors: DescriptorStorage,
+}
+
+/// Where the index keeps its f32 descriptors (`store.descriptors`).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, Serialize, Deserialize)]
+#[serde(rename_all = "lowercase")]
+pub enum DescriptorStorage {
+    /// In an unnamed file in `store.data_dir` once the scan reads the
+    /// codes first (`vpr.scan`: from 32 768 keyframes on CPUs with a fast
+    /// code kernel), in memory before.
+    #[default]
+    Auto,
+    /// Always in memory.
+    Memory,
+    /// Always in the file (an f32 scan then reads the file).
+    File,
+}
+
+impl StoreConfig {
+    /// Keyframes from which the descriptors leave memory under `scan`
+    /// (None: never), for [`humem_store::StoreOptions`].
+    pub fn descriptors_to_file_from(&self, scan: humem_core::vpr::ScanMode) -> Option<usize> {
+        match self.descriptors {
+            DescriptorStorage::Auto => humem_core::vpr::scan::codes_first_from(scan),
+            DescriptorStorage::Memory => None,
+            DescriptorStorage::File => Some(0),
+        }
+    }
 }
 
 impl Default for StoreConfig {
@@ -208,6 +238,7 @@ impl Default for StoreConfig {
             scene_top_k: 16,
             snapshot_every: humem_store::DEFAULT_SNAPSHOT_EVERY,
             min_free_bytes: humem_store::disk::DEFAULT_MIN_FREE_BYTES,
+            descriptors: DescriptorStorage::Auto,
         }
     }
 }
@@ -396,6 +427,42 @@ mod tests {
         assert_eq!(config.vpr.tau_s, 0.5);
         assert_eq!(config.log.format, LogFormat::Json);
         assert_eq!(config.server.listen.to_string(), "0.0.0.0:1");
+    }
+
+    #[test]
+    fn where_the_descriptors_live_follows_the_scan() {
+        use humem_core::vpr::scan::{codes_first_from, COMPRESSED_MIN_ROWS};
+        use humem_core::vpr::ScanMode;
+        let dir = tempfile::tempdir().unwrap();
+        let file = dir.path().join("humem.toml");
+        let load = |text: &str| {
+            std::fs::write(&file, text).unwrap();
+            Config::load(Some(&file), Figment::new())
+        };
+        let defaults = Config::load(None, Figment::new()).unwrap();
+        assert_eq!(defaults.store.descriptors, DescriptorStorage::Auto);
+        assert_eq!(
+            defaults.store.descriptors_to_file_from(ScanMode::Auto),
+            codes_first_from(ScanMode::Auto)
+        );
+        assert!(matches!(
+            codes_first_from(ScanMode::Auto),
+            None | Some(COMPRESSED_MIN_ROWS)
+        ));
+        let exact = load("[vpr]\nscan = \"exact\"\n").unwrap();
+        assert_eq!(exact.store.descriptors_to_file_from(exact.vpr.scan), None);
+        let forced = load("[store]\ndescriptors = \"file\"\n[vpr]\nscan = \"exact\"\n").unwrap();
+        assert_eq!(
+            forced.store.descriptors_to_file_from(forced.vpr.scan),
+            Some(0)
+        );
+        let memory = load("[store]\ndescriptors = \"memory\"\n").unwrap();
+        assert_eq!(
+            memory.store.descriptors_to_file_from(ScanMode::Compressed),
+            None
+        );
+        let err = load("[store]\ndescriptors = \"disk\"\n").unwrap_err();
+        assert!(err.to_string().contains("disk"), "{err}");
     }
 
     #[test]

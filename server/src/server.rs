@@ -40,6 +40,7 @@ pub async fn serve(config: Config) -> anyhow::Result<()> {
         queue_capacity: config.store.write_queue,
         snapshot_every: config.store.snapshot_every,
         min_free_bytes: config.store.min_free_bytes,
+        descriptors_to_file_from: config.store.descriptors_to_file_from(config.vpr.scan),
     };
     let data_dir = config.store.data_dir.clone();
     let opening = tokio::task::spawn_blocking(move || {

@@ -56,9 +56,15 @@ struct Row {
     bytes: u64,
 }
 
+/// The server's defaults where they matter here: the descriptors leave
+/// memory where `store.descriptors = "auto"` would move them, so that the
+/// opens include moving them.
 fn options() -> StoreOptions {
     StoreOptions {
         snapshot_every: 0,
+        descriptors_to_file_from: humem_core::vpr::scan::codes_first_from(
+            humem_core::vpr::ScanMode::Auto,
+        ),
         ..StoreOptions::default()
     }
 }

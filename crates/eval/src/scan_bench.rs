@@ -47,6 +47,11 @@ pub struct ScanBench {
     /// Robots sharing the store.
     #[arg(long, default_value_t = 8)]
     pub robots: usize,
+    /// Directory for the descriptor row file of the last pass (a disk,
+    /// not a memory file system; default: the system's temporary
+    /// directory).
+    #[arg(long)]
+    pub dir: Option<std::path::PathBuf>,
 }
 
 /// Keyframes per place visit, on average: a robot passes a place in a few
@@ -123,7 +128,7 @@ fn flat_scan(index: &Index, query: &[f32], k: usize) -> Vec<(f32, usize)> {
     // Min-heap on score of the best k so far (scores are negated).
     let mut best: BinaryHeap<(std::cmp::Reverse<OrderedScore>, usize)> = BinaryHeap::new();
     for row in 0..matrix.len() {
-        let score = dot_f32_wide(query, matrix.row(row));
+        let score = dot_f32_wide(query, &matrix.row(row));
         if best.len() < k {
             best.push((std::cmp::Reverse(OrderedScore(score)), row));
         } else if let Some(worst) = best.peek() {
@@ -211,6 +216,13 @@ struct Row {
     queries: usize,
     /// Resident memory the store added, per keyframe (Linux only).
     per_keyframe: Option<f64>,
+    /// The compressed pass with the f32 rows in a file: 1 core, every core.
+    file_one: f64,
+    file_all: f64,
+    /// Its answers equal to the exact pass's (with the rows in memory).
+    file_identical: usize,
+    /// Resident memory per keyframe with the f32 rows in a file.
+    file_per_keyframe: Option<f64>,
 }
 
 /// This process's resident set size, from `/proc/self/status`.
@@ -219,6 +231,14 @@ fn resident_bytes() -> Option<u64> {
     let line = status.lines().find(|l| l.starts_with("VmRSS:"))?;
     let kib: u64 = line.split_whitespace().nth(1)?.parse().ok()?;
     Some(kib * 1024)
+}
+
+/// A table cell for resident bytes per keyframe, against the f32
+/// descriptor's size.
+fn per_keyframe_cell(bytes: Option<f64>, dim: usize) -> String {
+    bytes.map_or("-".to_string(), |b| {
+        format!("{b:.0} B ({:.2}x the f32 descriptor)", b / (4 * dim) as f64)
+    })
 }
 
 /// Runs the benchmark and prints the table.
@@ -242,11 +262,14 @@ pub fn scan(config: Config, args: ScanBench) -> anyhow::Result<()> {
         eprintln!("bench scan: building a store of {rows} x {}", args.dim);
         let resident_before = resident_bytes();
         let started = Instant::now();
-        let index = store(rows, args.dim, args.robots);
+        let mut index = store(rows, args.dim, args.robots);
         let build = started.elapsed();
-        let per_keyframe = resident_bytes()
-            .zip(resident_before)
-            .map(|(after, before)| after.saturating_sub(before) as f64 / rows as f64);
+        let added_per_keyframe = || {
+            resident_bytes()
+                .zip(resident_before)
+                .map(|(after, before)| after.saturating_sub(before) as f64 / rows as f64)
+        };
+        let per_keyframe = added_per_keyframe();
         let per_robot = (rows / args.robots) as u64;
         ensure!(per_robot > 2, "--rows too small for {} robots", args.robots);
         let mut rng = Rng::new(99);
@@ -255,6 +278,7 @@ pub fn scan(config: Config, args: ScanBench) -> anyhow::Result<()> {
             .collect();
         let (mut flat, mut exact_t, mut one_t, mut all_t) = (vec![], vec![], vec![], vec![]);
         let mut identical = 0;
+        let mut exact_answers = Vec::new();
         // The first two queries warm caches and are not timed.
         for (n, &id) in ids.iter().enumerate() {
             let spec = spec(id, k);
@@ -274,6 +298,7 @@ pub fn scan(config: Config, args: ScanBench) -> anyhow::Result<()> {
                 let outcome = outcome.map_err(|e| anyhow::anyhow!("query {id}: {e:?}"))?;
                 outcomes.push((t, answer(&outcome)));
             }
+            exact_answers.push(outcomes[0].1.clone());
             if n < 2 {
                 continue;
             }
@@ -283,6 +308,37 @@ pub fn scan(config: Config, args: ScanBench) -> anyhow::Result<()> {
             all_t.push(outcomes[2].0);
             if outcomes[1].1 == outcomes[0].1 && outcomes[2].1 == outcomes[0].1 {
                 identical += 1;
+            }
+        }
+
+        // The same compressed queries with the f32 rows moved to a file,
+        // as `store.descriptors = "auto"` does in the server.
+        let dir = match &args.dir {
+            Some(dir) => tempfile::tempdir_in(dir),
+            None => tempfile::tempdir(),
+        }
+        .context("creating a directory for the row file")?;
+        index
+            .move_descriptors_to_file(dir.path())
+            .context("moving the descriptors to a file")?;
+        let file_per_keyframe = added_per_keyframe();
+        let (mut file_one, mut file_all, mut file_identical) = (vec![], vec![], 0);
+        for (n, (&id, exact)) in ids.iter().zip(&exact_answers).enumerate() {
+            let spec = spec(id, k);
+            let run = || query::run(&index, &compressed, &spec);
+            let (one, a) = one_core.install(|| timed(run));
+            let (all, b) = timed(run);
+            let (a, b) = (
+                a.map_err(|e| anyhow::anyhow!("query {id}: {e:?}"))?,
+                b.map_err(|e| anyhow::anyhow!("query {id}: {e:?}"))?,
+            );
+            if n < 2 {
+                continue;
+            }
+            file_one.push(one);
+            file_all.push(all);
+            if &answer(&a) == exact && &answer(&b) == exact {
+                file_identical += 1;
             }
         }
         table.push(Row {
@@ -295,6 +351,10 @@ pub fn scan(config: Config, args: ScanBench) -> anyhow::Result<()> {
             identical,
             queries: args.queries,
             per_keyframe,
+            file_one: median_ms(&file_one),
+            file_all: median_ms(&file_all),
+            file_identical,
+            file_per_keyframe,
         });
         drop(index);
     }
@@ -321,11 +381,27 @@ pub fn scan(config: Config, args: ScanBench) -> anyhow::Result<()> {
             r.compressed_all / r.flat,
             r.identical,
             r.queries,
-            r.per_keyframe.map_or("-".to_string(), |b| format!(
-                "{b:.0} B ({:.2}x the f32 descriptor)",
-                b / (4 * args.dim) as f64
-            )),
+            per_keyframe_cell(r.per_keyframe, args.dim),
             r.build.as_secs_f64()
+        );
+    }
+    println!();
+    println!("The compressed pass again, with the f32 rows moved to a file (store.descriptors = \"auto\" from 32 768 keyframes):");
+    println!(
+        "| keyframes | HuMem compressed, 1 core | HuMem compressed, {threads} cores | same answers as exact | resident per keyframe |"
+    );
+    println!("| --- | --- | --- | --- | --- |");
+    for r in &table {
+        println!(
+            "| {} | {:.1} ms ({:.2}x) | {:.1} ms ({:.2}x) | {}/{} | {} |",
+            r.rows,
+            r.file_one,
+            r.file_one / r.flat,
+            r.file_all,
+            r.file_all / r.flat,
+            r.file_identical,
+            r.queries,
+            per_keyframe_cell(r.file_per_keyframe, args.dim),
         );
     }
     Ok(())
@@ -342,7 +418,7 @@ mod tests {
         let top = flat_scan(&index, &q, 5);
         assert_eq!(top.len(), 5);
         let mut all: Vec<(f32, usize)> = (0..index.len())
-            .map(|r| (dot_f32_wide(&q, index.descriptor(r)), r))
+            .map(|r| (dot_f32_wide(&q, &index.descriptor(r)), r))
             .collect();
         all.sort_by(|a, b| b.0.total_cmp(&a.0));
         let mut top_rows: Vec<usize> = top.iter().map(|t| t.1).collect();
