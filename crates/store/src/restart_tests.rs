@@ -169,10 +169,27 @@ async fn descriptors_in_a_file_keep_every_change_across_restarts() {
         IndexSource::Snapshot { .. }
     ));
     assert!(!store.index().descriptors_in_memory());
+    assert_eq!(contents(&store).len(), 27);
+    // Changes to rows that still lie in the snapshot's file, and a new
+    // snapshot renamed over that file while the index reads from it.
+    let mut replaced = kf("a", "s", 1, 0);
+    replaced.features.descriptor = vec![0.25, 0.5, 0.75];
+    insert(&store, vec![replaced, kf("b", "s", 0, 0)]).await;
+    let erase = Mutation::Erase {
+        session: session("a", "s"),
+        keyframe_ids: vec![2, 28],
+    };
+    assert_eq!(store.apply(erase).await.unwrap().affected, 2);
+    assert!(store.snapshot().unwrap().is_some());
+    insert(&store, vec![kf("b", "s", 1, 0)]).await;
     let loaded = contents(&store);
     drop(store);
     assert_eq!(loaded.len(), 27);
     assert_eq!(loaded, rebuilt_from_tree(dir.path()));
+    let store = open_manual_with(dir.path(), Some(10));
+    assert_eq!(store.opened().source, IndexSource::Snapshot { replayed: 1 });
+    assert_eq!(contents(&store), loaded);
+    drop(store);
     std::fs::remove_file(snapshot::path(dir.path())).unwrap();
     let store = open_manual_with(dir.path(), Some(10));
     assert!(matches!(store.opened().source, IndexSource::Tree { .. }));

@@ -38,6 +38,8 @@ use humem_core::index::{Index, IndexRestore, RestoreError};
 use humem_core::keyframe::{
     Features, KeyframeKey, ObjectObservation, Pose, SceneClass, SemanticKeyframe,
 };
+use humem_core::vpr::codes::CodeMatrix;
+use humem_core::vpr::row_file::RowFile;
 use humem_core::vpr::DescriptorMatrix;
 use parking_lot::RwLock;
 use serde::{Deserialize, Serialize};
@@ -310,9 +312,10 @@ impl Unpublished {
 /// Reads the snapshot in `dir`, if there is one: its header and the index
 /// it holds. Checks magic, version, store id, dimension and checksum
 /// before anything is decoded. A snapshot of at least
-/// `descriptors_to_file_from` keyframes streams its descriptors into a row
-/// file in `dir` (see [`DescriptorMatrix::move_to_file`]) instead of
-/// memory, so that opening a large store never holds them all in memory.
+/// `descriptors_to_file_from` keyframes leaves its descriptors in its own
+/// file, as the base of a [`RowFile`] (changes go to that row file's
+/// unnamed files in `dir`), instead of reading them into memory: opening
+/// a large store neither holds them all in memory nor copies them.
 pub fn read(
     dir: &Path,
     store_id: u128,
@@ -385,7 +388,10 @@ pub fn read(
                 return Ok(DescriptorMatrix::new(dim.max(header.dim)));
             }
             if descriptors_to_file_from.is_some_and(|from| header.rows >= from) {
-                let mut matrix = DescriptorMatrix::new_in_file(header.dim, dir).map_err(io)?;
+                // The rows stay where they are: read once for the checksum
+                // and the codes, then served from this file's descriptor
+                // section, which a later snapshot's rename does not touch.
+                let mut codes = CodeMatrix::new(header.dim);
                 let mut crc = crc32fast::Hasher::new();
                 let mut block = vec![0f32; STREAM_ROWS.min(header.rows) * header.dim];
                 for first in (0..header.rows).step_by(STREAM_ROWS) {
@@ -394,12 +400,15 @@ pub fn read(
                     let at = HEADER_BYTES as u64 + (first * header.dim * 4) as u64;
                     read_at(&file, at, bytemuck::cast_slice_mut(block)).map_err(io)?;
                     crc.update(bytemuck::cast_slice(block));
-                    matrix.extend(block);
+                    codes.extend(header.dim, block);
                 }
                 if crc.finalize() != descriptors_crc {
                     return Err(SnapshotError::Checksum);
                 }
-                return Ok(matrix);
+                let base = file.try_clone().map_err(io)?;
+                let rows = RowFile::over(base, HEADER_BYTES as u64, header.rows, dir, header.dim)
+                    .map_err(io)?;
+                return Ok(DescriptorMatrix::from_row_file(header.dim, rows, codes));
             }
             let mut data = vec![0f32; header.rows * header.dim];
             read_at(
@@ -419,7 +428,7 @@ pub fn read(
     Ok(Some((header, restore?.finish(matrix?)?)))
 }
 
-/// Rows read per call when the descriptors stream into a row file.
+/// Rows read per call when the descriptors stay in the snapshot file.
 const STREAM_ROWS: usize = 16_384;
 
 /// Fills `buffer` from `file` at `offset`, leaving the file's own position

@@ -94,19 +94,32 @@ impl CodeMatrix {
     /// The codes of `data`, rows of `dim` values, encoded on every core:
     /// for loading a whole matrix at once.
     pub fn from_rows(dim: usize, data: &[f32]) -> CodeMatrix {
-        use rayon::prelude::*;
         let mut matrix = CodeMatrix::new(dim);
-        if dim == 0 {
-            return matrix;
+        if dim > 0 {
+            matrix.extend(dim, data);
         }
-        let rows = data.len() / dim;
-        matrix.codes = vec![128; rows * matrix.stride];
-        matrix.rows = data
-            .par_chunks_exact(dim)
-            .zip(matrix.codes.par_chunks_exact_mut(matrix.stride))
-            .map(|(row, codes)| quantize(row, 127, |i, c| codes[i] = (i16::from(c) + 128) as u8))
-            .collect();
         matrix
+    }
+
+    /// Appends the codes of `data`, rows of `dim` values (this matrix's
+    /// dimension), encoded on every core: for loading many rows at once.
+    pub fn extend(&mut self, dim: usize, data: &[f32]) {
+        use rayon::prelude::*;
+        assert_eq!(
+            dim.div_ceil(CODE_BLOCK) * CODE_BLOCK,
+            self.stride,
+            "rows of another dimension"
+        );
+        let start = self.codes.len();
+        self.codes
+            .resize(start + data.len() / dim * self.stride, 128);
+        let codes = self.codes[start..]
+            .par_chunks_exact_mut(self.stride)
+            .zip(data.par_chunks_exact(dim))
+            .map(|(codes, row)| quantize(row, 127, |i, c| codes[i] = (i16::from(c) + 128) as u8));
+        let mut rows = Vec::new();
+        rows.par_extend(codes);
+        self.rows.append(&mut rows);
     }
 
     /// Appends the codes of `row`.

@@ -112,37 +112,17 @@ impl DescriptorMatrix {
         }
     }
 
-    /// An empty matrix whose rows go to a new [`RowFile`] in `dir` from
-    /// the start (see [`DescriptorMatrix::move_to_file`]).
-    pub fn new_in_file(dim: usize, dir: &Path) -> io::Result<Self> {
-        Ok(DescriptorMatrix {
+    /// A matrix of the rows in `file`, whose `codes` the caller computed
+    /// from them (as when the rows were read once to check them). Panics
+    /// if the two differ in length.
+    pub fn from_row_file(dim: usize, file: RowFile, codes: CodeMatrix) -> Self {
+        assert_eq!(file.len(), codes.len(), "codes for other rows");
+        DescriptorMatrix {
             dim,
-            rows: 0,
-            data: Rows::File(RowFile::create_in(dir, dim)?),
-            codes: CodeMatrix::new(dim),
-        })
-    }
-
-    /// Appends whole rows, row-major, with their codes: one write when the
-    /// rows are in a file. Panics if `rows.len()` is not a multiple of
-    /// `dim()`.
-    pub fn extend(&mut self, rows: &[f32]) {
-        assert!(
-            self.dim > 0 && rows.len().is_multiple_of(self.dim),
-            "{} values are not rows of {}",
-            rows.len(),
-            self.dim
-        );
-        match &mut self.data {
-            Rows::Memory(data) => data.extend_from_slice(rows),
-            Rows::File(file) => file
-                .append(rows)
-                .unwrap_or_else(|e| row_file_failed("append rows", e)),
+            rows: file.len(),
+            data: Rows::File(file),
+            codes,
         }
-        for row in rows.chunks_exact(self.dim) {
-            self.codes.push(row);
-        }
-        self.rows += rows.len() / self.dim;
     }
 
     /// The matrix without the rows listed in `skip` (ascending), the
@@ -373,6 +353,7 @@ pub fn multi_dot<const Q: usize>(queries: &[&[f32]; Q], row: &[f32]) -> [f32; Q]
 #[cfg(test)]
 mod tests {
     use super::*;
+    use std::fs::File;
 
     #[test]
     fn multi_dot_equals_separate_dots() {
@@ -419,7 +400,8 @@ mod tests {
         assert_eq!(m.dim(), 2);
     }
 
-    /// The same changes on a matrix in memory and one in a row file.
+    /// The same changes on a matrix in memory, one moved to a row file and
+    /// one over rows stored in another file.
     #[test]
     fn rows_in_a_file_behave_as_rows_in_memory() {
         let dir = tempfile::tempdir().unwrap();
@@ -433,19 +415,21 @@ mod tests {
         file.move_to_file(dir.path()).unwrap();
         assert!(!file.in_memory() && memory.in_memory());
         assert_eq!(file, memory);
-        let mut streamed = DescriptorMatrix::new_in_file(3, dir.path()).unwrap();
-        streamed.extend(&memory.rows(0, 2));
-        streamed.extend(&memory.rows(2, 3));
-        assert_eq!(streamed, memory);
-        assert_eq!(streamed.codes(), memory.codes());
-        for m in [&mut memory, &mut file] {
+        let base = dir.path().join("base");
+        std::fs::write(&base, bytemuck::cast_slice::<f32, u8>(&memory.rows(0, 5))).unwrap();
+        let rows = RowFile::over(File::open(&base).unwrap(), 0, 5, dir.path(), 3).unwrap();
+        let mut over = DescriptorMatrix::from_row_file(3, rows, memory.codes().clone());
+        assert_eq!(over, memory);
+        for m in [&mut memory, &mut file, &mut over] {
             m.push(&[9.0, 9.0, 9.0]);
             m.set_row(1, &[7.0, 8.0, 9.0]);
             m.swap_remove(0);
             m.swap_remove(4);
         }
         assert_eq!(file, memory);
+        assert_eq!(over, memory);
         assert_eq!(file.codes(), memory.codes());
+        assert_eq!(over.codes(), memory.codes());
         assert_eq!(&*file.row(0), &[9.0, 9.0, 9.0]);
         assert_eq!(&*file.rows(1, 2), &*memory.rows(1, 2));
         assert!(file.clone().in_memory(), "a clone is in memory");
