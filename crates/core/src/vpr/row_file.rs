@@ -36,6 +36,9 @@ pub struct RowFile {
     base_rows: usize,
     /// Row `base_rows + i` at byte `4·dim·i`.
     tail: File,
+    /// Rows the tail file has room for (its length), at least the rows in
+    /// it: see [`RowFile::truncate`].
+    tail_capacity: usize,
     /// Overwritten base rows: row → slot in `patches`.
     patched: BTreeMap<usize, usize>,
     patches: File,
@@ -61,6 +64,7 @@ impl RowFile {
             base: None,
             base_rows: 0,
             tail: tempfile::tempfile_in(dir)?,
+            tail_capacity: 0,
             patched: BTreeMap::new(),
             patches: tempfile::tempfile_in(dir)?,
             patch_slots: 0,
@@ -142,12 +146,14 @@ impl RowFile {
         }
         let at = first + in_base - self.base_rows;
         self.tail
-            .write_all_at(bytemuck::cast_slice(tail), self.bytes(at))
+            .write_all_at(bytemuck::cast_slice(tail), self.bytes(at))?;
+        self.tail_capacity = self.tail_capacity.max(at + tail.len() / self.dim);
+        Ok(())
     }
 
     /// Reads the rows from `first` on into `out` (whole rows, within the
-    /// file): base rows in one call, then their patches, then the tail in
-    /// one call.
+    /// file): each run of unpatched base rows in one call, each patched
+    /// row from its patch (never both), the tail in one call.
     pub fn read(&self, first: usize, out: &mut [f32]) -> io::Result<()> {
         self.check_whole(out.len());
         let count = out.len() / self.dim;
@@ -159,17 +165,27 @@ impl RowFile {
         let in_base = self.base_rows.saturating_sub(first).min(count);
         if let (Some(base), true) = (&self.base, in_base > 0) {
             let (head, _) = out.split_at_mut(in_base * self.dim);
-            base.file.read_exact_at(
-                bytemuck::cast_slice_mut(head),
-                base.offset + self.bytes(first),
-            )?;
+            let values = |rows: std::ops::Range<usize>| {
+                (rows.start - first) * self.dim..(rows.end - first) * self.dim
+            };
+            let read_base = |rows: std::ops::Range<usize>, head: &mut [f32]| {
+                if rows.is_empty() {
+                    return Ok(());
+                }
+                let at = base.offset + self.bytes(rows.start);
+                base.file
+                    .read_exact_at(bytemuck::cast_slice_mut(&mut head[values(rows)]), at)
+            };
+            let mut next = first;
             for (&row, &slot) in self.patched.range(first..first + in_base) {
-                let at = (row - first) * self.dim;
+                read_base(next..row, head)?;
                 self.patches.read_exact_at(
-                    bytemuck::cast_slice_mut(&mut head[at..at + self.dim]),
+                    bytemuck::cast_slice_mut(&mut head[values(row..row + 1)]),
                     self.bytes(slot),
                 )?;
+                next = row + 1;
             }
+            read_base(next..first + in_base, head)?;
         }
         let tail = &mut out[in_base * self.dim..];
         if tail.is_empty() {
@@ -180,7 +196,11 @@ impl RowFile {
             .read_exact_at(bytemuck::cast_slice_mut(tail), self.bytes(at))
     }
 
-    /// Keeps the first `rows` rows.
+    /// Keeps the first `rows` rows. The tail file keeps its length while
+    /// at least half of it is in use: a replaced keyframe is a
+    /// swap-remove then an append, and overwriting the same bytes costs
+    /// less than giving blocks back to the file system and taking them
+    /// again on every insert.
     pub fn truncate(&mut self, rows: usize) -> io::Result<()> {
         assert!(rows <= self.rows, "truncating {} rows to {rows}", self.rows);
         if rows < self.base_rows {
@@ -189,7 +209,11 @@ impl RowFile {
             self.patched.split_off(&rows);
             self.base_rows = rows;
         }
-        self.tail.set_len(self.bytes(rows - self.base_rows))?;
+        let tail_rows = rows - self.base_rows;
+        if tail_rows < self.tail_capacity / 2 {
+            self.tail.set_len(self.bytes(tail_rows))?;
+            self.tail_capacity = tail_rows;
+        }
         self.rows = rows;
         Ok(())
     }

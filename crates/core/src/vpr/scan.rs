@@ -38,7 +38,7 @@ use crate::vpr::appearance;
 use crate::vpr::calibration::{NullModel, Sampler};
 use crate::vpr::codes::QueryCode;
 use crate::vpr::kernels::CodeKernel;
-use crate::vpr::matrix::{dot, multi_dot};
+use crate::vpr::matrix::multi_dot;
 use crate::vpr::memory::KeyframeMemory;
 use crate::vpr::params::VprParams;
 use crate::vpr::scal::{temporal_hit, ScalHit, ScalQuery, SceneProfile, STEPS};
@@ -182,13 +182,6 @@ impl<'a> QuerySide<'a> {
         std::array::from_fn(|j| self.fused(memory, row, j, dots[j]))
     }
 
-    /// `s_e(Q_{t−j}, row)` of one step, exactly as [`QuerySide::exact_row`]
-    /// computes it.
-    fn exact_pair<M: KeyframeMemory + ?Sized>(&self, memory: &M, row: usize, j: usize) -> f32 {
-        let d = dot(self.descriptors[j], &memory.descriptors().row(row));
-        self.fused(memory, row, j, d)
-    }
-
     /// Upper bounds on `s_e(Q_{t−j}, row)` from the codes, for the rows
     /// from `first` on, one per entry of `out` (`bounds` is scratch space).
     fn upper_rows<M: KeyframeMemory + ?Sized>(
@@ -247,19 +240,81 @@ impl<'a> QuerySide<'a> {
         )
     }
 
-    /// The exact hit of `row`, following its predecessors.
+    /// The exact hit of `row`, following its predecessors, whose products
+    /// `table` holds.
     fn exact_hit<M: KeyframeMemory + ?Sized>(
         &self,
         params: &VprParams,
         memory: &M,
+        table: &ExactTable,
         row: usize,
     ) -> ScalHit {
         temporal_hit(params, memory, self.steps(), row, |c, j| {
             (
-                self.exact_pair(memory, c, j),
+                table.get(c)[j],
                 self.scenes[j].compatibility(memory.scene(c)),
             )
         })
+    }
+
+    /// The exact hits of `rows`, in their order: the rows and their chains
+    /// read once each ([`ExactTable`]).
+    fn exact_hits<M: KeyframeMemory + ?Sized>(
+        &self,
+        params: &VprParams,
+        memory: &M,
+        rows: &[usize],
+    ) -> Vec<ScalHit> {
+        let table = ExactTable::new(self, memory, rows);
+        rows.par_iter()
+            .map(|&row| self.exact_hit(params, memory, &table, row))
+            .collect()
+    }
+}
+
+/// Exact `s_e` of every step for a set of rows and the rows of their
+/// chains, each row read once, in row order. A row is in the chains of up
+/// to [`STEPS`] scored rows; reading it once per query instead of once per
+/// chain matters when the f32 rows are in a file, where each read is a
+/// system call.
+struct ExactTable {
+    rows: Vec<usize>,
+    s_e: Vec<[f32; STEPS]>,
+}
+
+impl ExactTable {
+    fn new<M: KeyframeMemory + ?Sized>(side: &QuerySide, memory: &M, rows: &[usize]) -> Self {
+        let matrix = memory.descriptors();
+        let mut needed = Vec::with_capacity(rows.len() * side.steps());
+        for &row in rows {
+            // The rows `temporal_hit` visits: the row, then predecessors.
+            let mut c = row;
+            needed.push(c);
+            for _ in 1..side.steps() {
+                match memory.predecessor(c) {
+                    Some(p) if p < matrix.len() => c = p,
+                    _ => break,
+                }
+                needed.push(c);
+            }
+        }
+        needed.sort_unstable();
+        needed.dedup();
+        let s_e = needed
+            .par_iter()
+            .with_min_len(64)
+            .map(|&c| side.exact_row(memory, c, &matrix.row(c)))
+            .collect();
+        ExactTable { rows: needed, s_e }
+    }
+
+    /// The products of chain row `c`. Panics if it is not in the table.
+    fn get(&self, c: usize) -> &[f32; STEPS] {
+        let i = self
+            .rows
+            .binary_search(&c)
+            .expect("a chain row of a scored row");
+        &self.s_e[i]
     }
 }
 
@@ -407,16 +462,17 @@ where
     let floor = if eligible_count <= k {
         f32::NEG_INFINITY
     } else {
-        seeds
+        let rows: Vec<usize> = seeds.iter().map(|&(_, row)| row).collect();
+        side.exact_hits(params, memory, &rows)
             .iter()
-            .map(|&(_, row)| side.exact_hit(params, memory, row).score)
+            .map(|hit| hit.score)
             .fold(f32::INFINITY, f32::min)
     };
 
     // Every row that can reach L, scored exactly.
     // Plain loops over blocks of the bounds: a rayon item per row would
     // cost more than the comparison.
-    let mut hits: Vec<ScalHit> = loose
+    let open: Vec<usize> = loose
         .par_chunks(BLOCK)
         .enumerate()
         .flat_map_iter(|(b, block)| {
@@ -432,13 +488,14 @@ where
                         )
                     });
                     if tight.score >= floor {
-                        found.push(side.exact_hit(params, memory, row));
+                        found.push(row);
                     }
                 }
             }
             found
         })
         .collect();
+    let mut hits = side.exact_hits(params, memory, &open);
     top_k(&mut hits, k);
 
     // The null model's sample: the eligible rows whose key's tag the
@@ -516,11 +573,16 @@ fn sample_median<M: KeyframeMemory + ?Sized>(
     let lo_m = nth(bounds.iter().map(|b| b.0).collect());
     let hi_m = nth(bounds.iter().map(|b| b.1).collect());
     let below = bounds.iter().filter(|b| b.1 < lo_m).count();
-    let mut open: Vec<f32> = rows
-        .par_iter()
+    let open_rows: Vec<usize> = rows
+        .iter()
         .zip(&bounds)
         .filter(|(_, b)| b.1 >= lo_m && b.0 <= hi_m)
-        .map(|(&row, _)| side.exact_hit(params, memory, row).score)
+        .map(|(&row, _)| row)
+        .collect();
+    let mut open: Vec<f32> = side
+        .exact_hits(params, memory, &open_rows)
+        .iter()
+        .map(|hit| hit.score)
         .collect();
     let (_, median, _) = open.select_nth_unstable_by(m - below, f32::total_cmp);
     *median
