@@ -40,7 +40,8 @@ pub async fn serve(config: Config) -> anyhow::Result<()> {
         queue_capacity: config.store.write_queue,
         snapshot_every: config.store.snapshot_every,
         min_free_bytes: config.store.min_free_bytes,
-        descriptors_to_file_from: config.store.descriptors_to_file_from(config.vpr.scan),
+        descriptors_to_file: config.store.descriptors_to_file(config.vpr.scan),
+        cache_bytes: config.store.cache_bytes,
     };
     let data_dir = config.store.data_dir.clone();
     let opening = tokio::task::spawn_blocking(move || {

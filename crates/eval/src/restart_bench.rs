@@ -57,14 +57,13 @@ struct Row {
 }
 
 /// The server's defaults where they matter here: the descriptors leave
-/// memory where `store.descriptors = "auto"` would move them, so that the
-/// opens include moving them.
+/// memory where `store.descriptors = "auto"` would move them (1M × 512:
+/// yes; 100k × 512: no), so that the opens include that.
 fn options() -> StoreOptions {
+    let auto = humem_server::config::StoreConfig::default();
     StoreOptions {
         snapshot_every: 0,
-        descriptors_to_file_from: humem_core::vpr::scan::codes_first_from(
-            humem_core::vpr::ScanMode::Auto,
-        ),
+        descriptors_to_file: auto.descriptors_to_file(humem_core::vpr::ScanMode::Auto),
         ..StoreOptions::default()
     }
 }

@@ -386,7 +386,7 @@ pub fn scan(config: Config, args: ScanBench) -> anyhow::Result<()> {
         );
     }
     println!();
-    println!("The compressed pass again, with the f32 rows moved to a file (store.descriptors = \"auto\" from 32 768 keyframes):");
+    println!("The compressed pass again, with the f32 rows moved to a file (store.descriptors = \"file\"; \"auto\" from 1 GiB of descriptors):");
     println!(
         "| keyframes | HuMem compressed, 1 core | HuMem compressed, {threads} cores | same answers as exact | resident per keyframe |"
     );

@@ -26,6 +26,7 @@ pub use checkpoint::SnapshotReport;
 pub mod codec;
 pub mod journal;
 mod placement;
+pub use placement::FileRule;
 pub mod snapshot;
 mod writer;
 
@@ -206,12 +207,19 @@ pub struct StoreOptions {
     /// snapshots that would go below are refused (removals are not); 0:
     /// no reserve. See [`disk`].
     pub min_free_bytes: u64,
-    /// Keyframes from which the index's f32 descriptors leave memory for
-    /// an unnamed file in the store's directory (their one-byte codes stay
-    /// in memory); None: they stay in memory. Worth it for stores scanned
-    /// on their codes, which read few f32 rows a query.
-    pub descriptors_to_file_from: Option<usize>,
+    /// When the index's f32 descriptors leave memory for unnamed files in
+    /// the store's directory (their one-byte codes stay in memory); None:
+    /// they stay in memory. Worth it for large stores scanned on their
+    /// codes, which read few f32 rows a query.
+    pub descriptors_to_file: Option<FileRule>,
+    /// Bytes of sled's own page cache (sled's default: 1 GiB); most of
+    /// the server's resident memory beyond the index once the store is
+    /// large.
+    pub cache_bytes: u64,
 }
+
+/// Default of [`StoreOptions::cache_bytes`]: sled's own.
+pub const DEFAULT_CACHE_BYTES: u64 = 1 << 30;
 
 impl Default for StoreOptions {
     fn default() -> Self {
@@ -220,7 +228,8 @@ impl Default for StoreOptions {
             queue_capacity: 1024,
             snapshot_every: DEFAULT_SNAPSHOT_EVERY,
             min_free_bytes: disk::DEFAULT_MIN_FREE_BYTES,
-            descriptors_to_file_from: None,
+            descriptors_to_file: None,
+            cache_bytes: DEFAULT_CACHE_BYTES,
         }
     }
 }
@@ -315,10 +324,12 @@ impl Store {
             queue_capacity,
             snapshot_every,
             min_free_bytes,
-            descriptors_to_file_from,
+            descriptors_to_file,
+            cache_bytes,
         } = options;
         let db = sled::Config::new()
             .path(dir)
+            .cache_capacity(cache_bytes)
             .open()
             .map_err(|source| StoreError::Open {
                 path: dir.display().to_string(),
@@ -352,7 +363,7 @@ impl Store {
         let sequence = journal::last_sequence(&journal_tree, &meta)?;
         let placement = Arc::new(placement::DescriptorPlacement::new(
             dir.to_path_buf(),
-            descriptors_to_file_from,
+            descriptors_to_file,
         ));
         let (index, source, snapshot_sequence) = load_index(
             &placement,
@@ -555,7 +566,7 @@ fn from_snapshot(
     sequence: u64,
 ) -> Result<Result<(Index, usize, u64), String>, StoreError> {
     let Some((header, mut index)) =
-        snapshot::read(placement.dir(), store_id, dim, placement.from())?
+        snapshot::read(placement.dir(), store_id, dim, placement.rule())?
     else {
         return Ok(Err(NO_SNAPSHOT.into()));
     };

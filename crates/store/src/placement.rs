@@ -19,21 +19,47 @@ use std::time::Instant;
 
 use humem_core::index::Index;
 
+/// When the f32 descriptors leave memory: once the store holds at least
+/// `min_keyframes` keyframes and its f32 descriptors take at least
+/// `min_bytes`.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct FileRule {
+    /// Keyframes from which the rows may leave memory.
+    pub min_keyframes: usize,
+    /// Bytes of f32 descriptors from which the rows may leave memory.
+    pub min_bytes: u64,
+}
+
+impl FileRule {
+    /// From `min_keyframes` keyframes, whatever their size.
+    pub fn from_keyframes(min_keyframes: usize) -> FileRule {
+        FileRule {
+            min_keyframes,
+            min_bytes: 0,
+        }
+    }
+
+    /// Whether `keyframes` descriptors of `dim` values leave memory.
+    pub fn applies(&self, keyframes: usize, dim: usize) -> bool {
+        keyframes >= self.min_keyframes && (keyframes as u64) * (dim as u64) * 4 >= self.min_bytes
+    }
+}
+
 /// The rule, and where the file goes.
 #[derive(Debug)]
 pub(crate) struct DescriptorPlacement {
     dir: PathBuf,
-    /// Keyframes from which the rows leave memory; None: never.
-    from: Option<usize>,
+    /// When the rows leave memory; None: never.
+    rule: Option<FileRule>,
     /// Set after a failed move, so that it is not retried on every group.
     gave_up: AtomicBool,
 }
 
 impl DescriptorPlacement {
-    pub(crate) fn new(dir: PathBuf, from: Option<usize>) -> Self {
+    pub(crate) fn new(dir: PathBuf, rule: Option<FileRule>) -> Self {
         DescriptorPlacement {
             dir,
-            from,
+            rule,
             gave_up: AtomicBool::new(false),
         }
     }
@@ -43,17 +69,17 @@ impl DescriptorPlacement {
         &self.dir
     }
 
-    /// Keyframes from which the descriptors leave memory (None: never).
-    pub(crate) fn from(&self) -> Option<usize> {
-        self.from
+    /// When the descriptors leave memory (None: never).
+    pub(crate) fn rule(&self) -> Option<FileRule> {
+        self.rule
     }
 
     /// Moves `index`'s f32 descriptors to a file if the rule says so and
     /// they are still in memory. A failure is logged and leaves them in
     /// memory, where they work as before.
     pub(crate) fn apply(&self, index: &mut Index) {
-        let Some(from) = self.from else { return };
-        if index.len() < from
+        let Some(rule) = self.rule else { return };
+        if !rule.applies(index.len(), index.dim())
             || index.dim() == 0
             || !index.descriptors_in_memory()
             || self.gave_up.load(Ordering::Relaxed)
@@ -84,32 +110,17 @@ impl DescriptorPlacement {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use humem_core::keyframe::{Features, KeyframeKey, Pose, SemanticKeyframe};
+    use crate::tests::kf;
 
-    fn keyframe(id: u64) -> SemanticKeyframe {
-        SemanticKeyframe {
-            key: KeyframeKey {
-                robot_id: "r".into(),
-                session_id: "s".into(),
-                keyframe_id: id,
-            },
-            frame_id: id,
-            timestamp: id as f64,
-            map_id: 0,
-            pose: Pose::default(),
-            features: Features {
-                descriptor: vec![1.0, id as f32],
-                appearance: Vec::new(),
-                scene: Vec::new(),
-                objects: Vec::new(),
-            },
-        }
+    fn keyframe(id: u64) -> humem_core::keyframe::SemanticKeyframe {
+        kf("r", "s", id, 0)
     }
 
     #[test]
     fn rows_move_once_the_store_reaches_the_threshold() {
         let dir = tempfile::tempdir().unwrap();
-        let placement = DescriptorPlacement::new(dir.path().to_path_buf(), Some(3));
+        let placement =
+            DescriptorPlacement::new(dir.path().to_path_buf(), Some(FileRule::from_keyframes(3)));
         let never = DescriptorPlacement::new(dir.path().to_path_buf(), None);
         let mut index = Index::new(0);
         placement.apply(&mut index);
@@ -125,14 +136,26 @@ mod tests {
         assert!(!index.descriptors_in_memory());
         index.upsert(keyframe(3));
         let row = index.row_of(&keyframe(3).key).unwrap();
-        assert_eq!(&*index.descriptor(row), &[1.0, 3.0]);
+        assert_eq!(&*index.descriptor(row), &[1.0, 0.0, 3.0]);
+    }
+
+    #[test]
+    fn the_rule_counts_keyframes_and_bytes() {
+        let rule = FileRule {
+            min_keyframes: 10,
+            min_bytes: 4000,
+        };
+        assert!(!rule.applies(9, 1000), "too few keyframes");
+        assert!(!rule.applies(10, 99), "too few bytes");
+        assert!(rule.applies(10, 100));
+        assert!(FileRule::from_keyframes(0).applies(0, 0));
     }
 
     #[test]
     fn a_failed_move_leaves_the_rows_in_memory() {
         let dir = tempfile::tempdir().unwrap();
         let missing = dir.path().join("missing");
-        let placement = DescriptorPlacement::new(missing, Some(0));
+        let placement = DescriptorPlacement::new(missing, Some(FileRule::from_keyframes(0)));
         let mut index = Index::new(0);
         index.upsert(keyframe(0));
         placement.apply(&mut index);

@@ -14,12 +14,13 @@ fn open_manual(dir: &Path) -> Store {
 /// [`open_manual`], with the descriptors leaving memory from
 /// `descriptors_to_file_from` keyframes.
 fn open_manual_with(dir: &Path, descriptors_to_file_from: Option<usize>) -> Store {
+    let descriptors_to_file = descriptors_to_file_from.map(FileRule::from_keyframes);
     let deadline = Instant::now() + Duration::from_secs(5);
     loop {
         let options = StoreOptions {
             snapshot_every: 0,
             queue_capacity: 16,
-            descriptors_to_file_from,
+            descriptors_to_file,
             ..StoreOptions::default()
         };
         match Store::open_with(dir, options, humem_core::observe::unobserved()) {

@@ -311,8 +311,8 @@ impl Unpublished {
 
 /// Reads the snapshot in `dir`, if there is one: its header and the index
 /// it holds. Checks magic, version, store id, dimension and checksum
-/// before anything is decoded. A snapshot of at least
-/// `descriptors_to_file_from` keyframes leaves its descriptors in its own
+/// before anything is decoded. A snapshot that `descriptors_to_file`
+/// applies to leaves its descriptors in its own
 /// file, as the base of a [`RowFile`] (changes go to that row file's
 /// unnamed files in `dir`), instead of reading them into memory: opening
 /// a large store neither holds them all in memory nor copies them.
@@ -320,7 +320,7 @@ pub fn read(
     dir: &Path,
     store_id: u128,
     dim: usize,
-    descriptors_to_file_from: Option<usize>,
+    descriptors_to_file: Option<crate::FileRule>,
 ) -> Result<Option<(Header, Index)>, SnapshotError> {
     let file_path = path(dir);
     let io = |source| SnapshotError::Io {
@@ -387,7 +387,7 @@ pub fn read(
             if header.rows == 0 {
                 return Ok(DescriptorMatrix::new(dim.max(header.dim)));
             }
-            if descriptors_to_file_from.is_some_and(|from| header.rows >= from) {
+            if descriptors_to_file.is_some_and(|rule| rule.applies(header.rows, header.dim)) {
                 // The rows stay where they are: read once for the checksum
                 // and the codes, then served from this file's descriptor
                 // section, which a later snapshot's rename does not touch.
