@@ -13,8 +13,21 @@ use humem_store::Mutation;
 /// Header naming an entry's format version.
 pub const FORMAT_HEADER: &str = "Humem-Log-Format";
 
-/// The format this build writes and the newest it reads.
-pub const FORMAT: u32 = 1;
+/// The newest format this build reads. Format 2 added verdicts
+/// (`Mutation::ReportVerdict`); every other change is still written as
+/// format 1 ([`format_of`]), so a replica of an older build keeps applying
+/// them during a rolling upgrade and waits at the first verdict instead of
+/// skipping it.
+pub const FORMAT: u32 = 2;
+
+/// The format an entry carrying `mutation` is written in: the oldest that
+/// holds it.
+pub fn format_of(mutation: &Mutation) -> u32 {
+    match mutation {
+        Mutation::ReportVerdict(_) => 2,
+        _ => 1,
+    }
+}
 
 /// Why an entry cannot be applied.
 #[derive(Debug, Clone, PartialEq, Eq, thiserror::Error)]
@@ -70,13 +83,35 @@ mod tests {
         };
         let payload = encode(&mutation);
         assert_eq!(decode(Some("1"), &payload).unwrap(), mutation);
+        assert_eq!(format_of(&mutation), 1);
+        assert_eq!(decode(Some("2"), &payload).unwrap(), mutation);
         assert_eq!(
-            decode(Some("2"), &payload).unwrap_err(),
+            decode(Some("3"), &payload).unwrap_err(),
             EntryError::Newer {
-                found: 2,
-                supported: 1
+                found: 3,
+                supported: 2
             }
         );
+        let verdict = Mutation::ReportVerdict(humem_core::verdict::Verdict {
+            query: humem_core::keyframe::KeyframeKey {
+                robot_id: "r".into(),
+                session_id: "s".into(),
+                keyframe_id: 2,
+            },
+            candidate: humem_core::keyframe::KeyframeKey {
+                robot_id: "r".into(),
+                session_id: "s".into(),
+                keyframe_id: 1,
+            },
+            kind: humem_core::verdict::VerificationKind::Merge,
+            accepted: true,
+            relative: None,
+            score: None,
+            inliers: 12,
+            reported_at: 5.0,
+        });
+        assert_eq!(format_of(&verdict), 2);
+        assert_eq!(decode(Some("2"), &encode(&verdict)).unwrap(), verdict);
         assert!(matches!(
             decode(None, &payload),
             Err(EntryError::Garbage(_))

@@ -231,7 +231,8 @@ impl Replica {
             id: &id,
         };
         let payload = entry::encode(&mutation);
-        let sequence = self.publish(&id, payload).await?;
+        let format = entry::format_of(&mutation);
+        let sequence = self.publish(&id, payload, format).await?;
         match tokio::time::timeout(inner.config.apply_timeout(), applied).await {
             Ok(Ok(result)) => Ok(Written {
                 outcome: result?,
@@ -247,7 +248,7 @@ impl Replica {
     }
 
     /// Publishes one entry and returns its sequence.
-    async fn publish(&self, id: &str, payload: Vec<u8>) -> Result<u64, ClusterError> {
+    async fn publish(&self, id: &str, payload: Vec<u8>, format: u32) -> Result<u64, ClusterError> {
         let inner = &self.inner;
         let started = Instant::now();
         let deadline = started + inner.config.publish_timeout();
@@ -258,7 +259,7 @@ impl Replica {
             let message = PublishMessage::build()
                 .payload(payload.clone())
                 .message_id(id)
-                .header(entry::FORMAT_HEADER, entry::FORMAT.to_string().as_str());
+                .header(entry::FORMAT_HEADER, format.to_string().as_str());
             let result = match inner
                 .js
                 .send_publish(inner.config.subject.clone(), message)

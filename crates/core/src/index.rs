@@ -17,8 +17,10 @@ use crate::keyframe::{
     KeyframeKey, ObjectObservation, Pose, SceneClass, SemanticKeyframe, SessionKey,
 };
 use crate::row_ids::{Eligibility, Interner, RowIds};
+use crate::verdict::{Verdict, VerdictBook};
 use crate::vpr::appearance::AppearanceMatrix;
 use crate::vpr::eligibility::QueryContext;
+use crate::vpr::feedback::Place;
 use crate::vpr::{self, DescriptorMatrix, KeyframeMemory};
 
 /// A map: (robot, session, map id).
@@ -154,6 +156,9 @@ pub struct Index {
     tracks: HashMap<MapKey, BTreeMap<u64, usize>>,
     /// Number of keyframes each normalised OCR string appears in.
     text_df: HashMap<String, u32>,
+    /// SLAM's verdicts on pairs of stored keyframes; a verdict goes with
+    /// either of its keyframes ([`Index::remove`]).
+    verdicts: VerdictBook,
 }
 
 impl Index {
@@ -170,6 +175,7 @@ impl Index {
             by_key: HashMap::new(),
             tracks: HashMap::new(),
             text_df: HashMap::new(),
+            verdicts: VerdictBook::new(),
         }
     }
 
@@ -324,7 +330,8 @@ impl Index {
     /// one was replaced. The descriptor must have the index's length (the
     /// first keyframe of an empty index fixes it when it is 0).
     pub fn upsert(&mut self, keyframe: SemanticKeyframe) -> bool {
-        let replaced = self.remove(&keyframe.key);
+        // A replaced keyframe keeps its verdicts: it is the same keyframe.
+        let replaced = self.remove_row(&keyframe.key);
         if self.matrix.dim() == 0 && self.matrix.is_empty() {
             self.matrix = DescriptorMatrix::new(keyframe.features.descriptor.len());
         }
@@ -372,8 +379,37 @@ impl Index {
         self.link(row);
     }
 
-    /// Removes a keyframe; returns true if it was stored.
+    /// Removes a keyframe and every verdict naming it; returns true if it
+    /// was stored.
     pub fn remove(&mut self, key: &KeyframeKey) -> bool {
+        self.verdicts.forget(key);
+        self.remove_row(key)
+    }
+
+    /// The stored verdicts.
+    pub fn verdicts(&self) -> &VerdictBook {
+        &self.verdicts
+    }
+
+    /// Records a verdict (the store has checked that both of its keyframes
+    /// are stored); says whether it replaced one on the same pair and kind.
+    pub fn record_verdict(&mut self, verdict: Verdict) -> bool {
+        self.verdicts.record(verdict)
+    }
+
+    /// Where a stored keyframe is (its map and camera centre), for the
+    /// verdicts' place tests.
+    pub fn place<'a>(&'a self, key: &KeyframeKey) -> Option<Place<'a>> {
+        let meta = &self.rows[self.row_of(key)?];
+        Some(Place {
+            key: &meta.key,
+            map_id: meta.map_id,
+            position: meta.pose.translation,
+        })
+    }
+
+    /// Removes a keyframe's row, leaving its verdicts.
+    fn remove_row(&mut self, key: &KeyframeKey) -> bool {
         let Some(row) = self.by_key.remove(key) else {
             return false;
         };

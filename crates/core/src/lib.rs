@@ -9,6 +9,8 @@
 //!   session, map), the unit everything stores and ranks;
 //! - [`vpr`]: HuMem-VPR scoring (SCAL, OSRL, OGTL, contradiction, fusion)
 //!   and the ranking of one query;
+//! - [`verdict`]: SLAM's geometric verdicts on proposed candidates, and
+//!   the book that keeps them beside the index;
 //! - [`index`]: the in-memory index the scan runs over, kept by the store;
 //! - [`row_ids`]: interned robot and session ids, so the scan's eligibility
 //!   test compares integers;
@@ -22,4 +24,5 @@ pub mod keyframe;
 pub mod observe;
 pub mod row_ids;
 pub mod synthetic;
+pub mod verdict;
 pub mod vpr;

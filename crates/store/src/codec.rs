@@ -10,6 +10,7 @@
 //! test below fails on any accidental change of the layout.
 
 use humem_core::keyframe::{KeyframeKey, SemanticKeyframe, SessionKey};
+use humem_core::verdict::Verdict;
 
 /// Version of the record layout written by this build. Version 2 added the
 /// appearance thumbnail as the last field of the features, which are the
@@ -99,6 +100,55 @@ pub fn decode_record(bytes: &[u8]) -> Result<SemanticKeyframe, CodecError> {
             upgraded.push(0);
             Ok(postcard::from_bytes(&upgraded)?)
         }
+        Some((&found, _)) => Err(CodecError::UnsupportedVersion { found }),
+    }
+}
+
+/// Version of the verdict record layout written by this build.
+pub const VERDICT_VERSION: u8 = 1;
+
+/// The sled key of a verdict in the verdicts tree: the query's key, the
+/// candidate's key, the kind's tag. Keyframe keys are self-delimiting
+/// (`robot \0 session \0` and 8 bytes), so every verdict naming a query
+/// keyframe is one prefix range.
+pub fn verdict_key(verdict: &Verdict) -> Vec<u8> {
+    let mut key = encode_key(&verdict.query);
+    key.extend_from_slice(&encode_key(&verdict.candidate));
+    key.push(verdict.kind.tag());
+    key
+}
+
+/// The key of the same verdict in the by-candidate tree: the candidate's
+/// key first, so every verdict naming a candidate is one prefix range.
+pub fn verdict_candidate_key(verdict: &Verdict) -> Vec<u8> {
+    let mut key = encode_key(&verdict.candidate);
+    key.extend_from_slice(&encode_key(&verdict.query));
+    key.push(verdict.kind.tag());
+    key
+}
+
+/// The by-candidate key of the verdict whose verdicts-tree key is `key`,
+/// whose query key is its first `query_len` bytes.
+pub fn verdict_twin_key(key: &[u8], query_len: usize) -> Vec<u8> {
+    let (query, rest) = key.split_at(query_len);
+    let (candidate, kind) = rest.split_at(rest.len() - 1);
+    let mut twin = Vec::with_capacity(key.len());
+    twin.extend_from_slice(candidate);
+    twin.extend_from_slice(query);
+    twin.extend_from_slice(kind);
+    twin
+}
+
+/// Serialises a verdict with its format version.
+pub fn encode_verdict(verdict: &Verdict) -> Vec<u8> {
+    postcard::to_extend(verdict, vec![VERDICT_VERSION]).expect("serialising to a Vec cannot fail")
+}
+
+/// Deserialises a verdict written by [`encode_verdict`].
+pub fn decode_verdict(bytes: &[u8]) -> Result<Verdict, CodecError> {
+    match bytes.split_first() {
+        None => Err(CodecError::Empty),
+        Some((&VERDICT_VERSION, body)) => Ok(postcard::from_bytes(body)?),
         Some((&found, _)) => Err(CodecError::UnsupportedVersion { found }),
     }
 }

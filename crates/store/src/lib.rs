@@ -40,6 +40,7 @@ use parking_lot::RwLock;
 
 pub use humem_core::index::{Index, MapKey};
 use humem_core::keyframe::{KeyframeKey, Pose, SemanticKeyframe, SessionKey};
+pub use humem_core::verdict::{RelativeTransform, Verdict, VerificationKind};
 
 /// Errors of the store.
 #[derive(Debug, thiserror::Error)]
@@ -106,6 +107,14 @@ pub enum StoreError {
         /// Bytes the store keeps free.
         reserve: u64,
     },
+    /// A verdict names a keyframe that is not stored.
+    #[error("{role}: keyframe {} of robot {:?}, session {:?} is not stored", .key.keyframe_id, .key.robot_id, .key.session_id)]
+    UnknownKeyframe {
+        /// Which end of the verdict: `query` or `candidate`.
+        role: &'static str,
+        /// The key named.
+        key: KeyframeKey,
+    },
     /// Writing the index snapshot failed (the store itself is unharmed).
     #[error("index snapshot: {0}")]
     Snapshot(#[from] snapshot::SnapshotError),
@@ -117,7 +126,10 @@ impl StoreError {
     /// is this store's (disk, sled, queue) and the same change may succeed
     /// later.
     pub fn is_refusal(&self) -> bool {
-        matches!(self, StoreError::DimensionMismatch { .. })
+        matches!(
+            self,
+            StoreError::DimensionMismatch { .. } | StoreError::UnknownKeyframe { .. }
+        )
     }
 }
 
@@ -145,6 +157,10 @@ pub enum Mutation {
         /// One corrected pose per keyframe.
         updates: Vec<PoseUpdate>,
     },
+    /// Record SLAM's verdict on a proposed candidate (both keyframes must
+    /// be stored; the newest verdict on a pair and kind replaces older).
+    /// Last, so that log entries of the other kinds keep their encoding.
+    ReportVerdict(Verdict),
 }
 
 /// A corrected pose for one keyframe of a session.
@@ -169,6 +185,8 @@ pub struct MutationOutcome {
     pub missing: Vec<u64>,
     /// Keyframes in the store afterwards.
     pub store_keyframes: u64,
+    /// Verdicts in the store afterwards.
+    pub store_verdicts: u64,
 }
 
 /// A change taken from a replicated log, at its position there (1, 2, …).
@@ -284,6 +302,11 @@ pub struct Store {
 }
 
 const KEYFRAMES_TREE: &str = "keyframes";
+/// Verdicts by query keyframe ([`codec::verdict_key`] → record).
+const VERDICTS_TREE: &str = "verdicts";
+/// The same verdicts by candidate keyframe ([`codec::verdict_candidate_key`]
+/// → the verdicts tree's key), so erasing a candidate finds its verdicts.
+const VERDICTS_BY_CANDIDATE_TREE: &str = "verdicts_by_candidate";
 const META_TREE: &str = "meta";
 const META_FORMAT: &[u8] = b"format_version";
 const META_DIM: &[u8] = b"descriptor_dim";
@@ -374,6 +397,10 @@ impl Store {
             dim,
             sequence,
         )?;
+        let verdicts = db.open_tree(VERDICTS_TREE)?;
+        let verdicts_by_candidate = db.open_tree(VERDICTS_BY_CANDIDATE_TREE)?;
+        let mut index = index;
+        load_verdicts(&verdicts, &mut index)?;
         let opened = OpenReport {
             source,
             keyframes: index.len(),
@@ -419,6 +446,8 @@ impl Store {
                 keyframes,
                 meta,
                 journal: journal_tree,
+                verdicts,
+                verdicts_by_candidate,
             },
             checkpoints.clone(),
             placement,
@@ -552,6 +581,29 @@ fn load_index(
     Ok((index, IndexSource::Tree { reason }, None))
 }
 
+/// Takes every stored verdict into the index. Verdicts are few (one per
+/// verified candidate) and are not in the index snapshot: they are read
+/// from their tree at every open, after the keyframes, which the erasure
+/// cascade keeps them consistent with.
+fn load_verdicts(tree: &sled::Tree, index: &mut Index) -> Result<(), StoreError> {
+    for item in tree.iter() {
+        let (key, value) = item?;
+        let verdict = codec::decode_verdict(&value).map_err(|source| StoreError::Corrupt {
+            key: key.to_vec(),
+            source,
+        })?;
+        if index.row_of(&verdict.query).is_some() && index.row_of(&verdict.candidate).is_some() {
+            index.record_verdict(verdict);
+        } else {
+            tracing::warn!(
+                ?key,
+                "a stored verdict names a keyframe that is not stored: ignored"
+            );
+        }
+    }
+    Ok(())
+}
+
 const NO_SNAPSHOT: &str = "no snapshot";
 
 /// The snapshot's index plus the journal's changes since, with the number
@@ -645,3 +697,5 @@ mod log_tests;
 mod restart_tests;
 #[cfg(test)]
 mod tests;
+#[cfg(test)]
+mod verdict_tests;

@@ -30,6 +30,7 @@ use super::{
 };
 use humem_core::keyframe::{KeyframeKey, Pose, SemanticKeyframe, SessionKey};
 use humem_core::observe::SharedObserver;
+use humem_core::verdict::Verdict;
 
 /// Most changes committed by one flush.
 const MAX_GROUP: usize = 256;
@@ -73,6 +74,8 @@ pub(super) struct Trees {
     pub keyframes: sled::Tree,
     pub meta: sled::Tree,
     pub journal: sled::Tree,
+    pub verdicts: sled::Tree,
+    pub verdicts_by_candidate: sled::Tree,
 }
 
 /// Sending side of the writer's queue.
@@ -170,12 +173,20 @@ struct Staged {
     added: i64,
     outcome: MutationOutcome,
     changes: Vec<IndexChange>,
+    /// Writes to the verdicts tree, and their count.
+    verdicts: sled::Batch,
+    /// Writes to the by-candidate tree of the verdicts.
+    verdicts_by_candidate: sled::Batch,
+    verdict_writes: usize,
+    /// Keys of the keyframes the change removes, whose verdicts go too.
+    removed: Vec<Vec<u8>>,
 }
 
 impl Staged {
     /// Stages the removal of a stored keyframe.
     fn remove(&mut self, bytes: Vec<u8>, key: KeyframeKey) {
         self.batch.remove(bytes.clone());
+        self.removed.push(bytes.clone());
         self.keys.push(bytes);
         self.added -= 1;
         self.outcome.affected += 1;
@@ -188,6 +199,9 @@ enum IndexChange {
     Upsert(SemanticKeyframe),
     Remove(KeyframeKey),
     Move(KeyframeKey, Pose, Option<u64>),
+    /// A verdict to record (the removals of verdicts follow the removals of
+    /// their keyframes in the index itself).
+    Verdict(Verdict),
 }
 
 struct Writer {
@@ -247,7 +261,7 @@ impl Publisher {
             sequence,
             journaled,
         } = group;
-        let store_keyframes = {
+        let (store_keyframes, store_verdicts) = {
             let mut index = self.index.write();
             for change in changes {
                 match change {
@@ -260,16 +274,20 @@ impl Publisher {
                     IndexChange::Move(key, pose, map) => {
                         index.update_pose(&key, pose, map);
                     }
+                    IndexChange::Verdict(verdict) => {
+                        index.record_verdict(verdict);
+                    }
                 }
             }
             self.placement.apply(&mut index);
             self.applied.store(sequence, Ordering::Release);
-            index.len() as u64
+            (index.len() as u64, index.verdicts().len() as u64)
         };
         self.checkpoints.journaled(journaled);
         let counted = |outcome: Result<MutationOutcome, StoreError>| {
             outcome.map(|mut o| {
                 o.store_keyframes = store_keyframes;
+                o.store_verdicts = store_verdicts;
                 o
             })
         };
@@ -424,14 +442,19 @@ impl Writer {
             Mutation::UpdatePoses { session, updates } => {
                 self.stage_pose_updates(&session, updates, &mut staged)?
             }
+            Mutation::ReportVerdict(verdict) => self.stage_verdict(verdict, &mut staged)?,
         }
-        if staged.keys.is_empty() {
+        self.stage_verdict_cascade(&mut staged)?;
+        if staged.keys.is_empty() && staged.verdict_writes == 0 {
             if let Some(position) = position {
                 self.record_position(position)?;
             }
             return Ok(staged.outcome);
         }
-        let sequence = self.sequence + 1;
+        // Only keyframe changes are journaled (the index snapshot replays
+        // them); verdicts are read whole from their tree at open.
+        let journaled_change = !staged.keys.is_empty();
+        let sequence = self.sequence + u64::from(journaled_change);
         let keyframes = self.keyframes.saturating_add_signed(staged.added);
         let entry = postcard::to_allocvec(&journal::Entry {
             keyframes,
@@ -439,10 +462,20 @@ impl Writer {
         })
         .map_err(|e| StoreError::Journal(e.to_string()))?;
         let key = journal::key(sequence);
-        (&self.trees.keyframes, &self.trees.journal, &self.trees.meta)
-            .transaction(|(keyframes, journal, meta)| {
+        (
+            &self.trees.keyframes,
+            &self.trees.journal,
+            &self.trees.meta,
+            &self.trees.verdicts,
+            &self.trees.verdicts_by_candidate,
+        )
+            .transaction(|(keyframes, journal, meta, verdicts, by_candidate)| {
                 keyframes.apply_batch(&staged.batch)?;
-                journal.insert(&key, entry.as_slice())?;
+                if journaled_change {
+                    journal.insert(&key, entry.as_slice())?;
+                }
+                verdicts.apply_batch(&staged.verdicts)?;
+                by_candidate.apply_batch(&staged.verdicts_by_candidate)?;
                 if let Some(position) = position {
                     meta.insert(META_LOG_POSITION, &position.to_be_bytes())?;
                 }
@@ -457,6 +490,55 @@ impl Writer {
         *journaled += staged.changes.len() as u64;
         changes.extend(staged.changes);
         Ok(staged.outcome)
+    }
+
+    /// Records a verdict, whose two keyframes must be stored.
+    fn stage_verdict(&self, verdict: Verdict, staged: &mut Staged) -> Result<(), StoreError> {
+        for (role, key) in [("query", &verdict.query), ("candidate", &verdict.candidate)] {
+            if !self.trees.keyframes.contains_key(encode_key(key))? {
+                return Err(StoreError::UnknownKeyframe {
+                    role,
+                    key: key.clone(),
+                });
+            }
+        }
+        let key = codec::verdict_key(&verdict);
+        if self.trees.verdicts.contains_key(&key)? {
+            staged.outcome.replaced += 1;
+        } else {
+            staged.outcome.affected += 1;
+        }
+        staged
+            .verdicts
+            .insert(key.clone(), codec::encode_verdict(&verdict));
+        staged
+            .verdicts_by_candidate
+            .insert(codec::verdict_candidate_key(&verdict), key);
+        staged.verdict_writes += 1;
+        staged.changes.push(IndexChange::Verdict(verdict));
+        Ok(())
+    }
+
+    /// Removes the verdicts naming any keyframe the change removes, as query
+    /// (a prefix range of the verdicts tree) or as candidate (one of the
+    /// by-candidate tree).
+    fn stage_verdict_cascade(&self, staged: &mut Staged) -> Result<(), StoreError> {
+        for removed in std::mem::take(&mut staged.removed) {
+            for item in self.trees.verdicts.scan_prefix(&removed).keys() {
+                let key = item?;
+                let twin = codec::verdict_twin_key(&key, removed.len());
+                staged.verdicts.remove(key);
+                staged.verdicts_by_candidate.remove(twin);
+                staged.verdict_writes += 1;
+            }
+            for item in self.trees.verdicts_by_candidate.scan_prefix(&removed) {
+                let (key, primary) = item?;
+                staged.verdicts_by_candidate.remove(key);
+                staged.verdicts.remove(primary);
+                staged.verdict_writes += 1;
+            }
+        }
+        Ok(())
     }
 
     /// Inserts or replaces keyframes; the first keyframe of an empty store

@@ -14,6 +14,8 @@
 //! - [`calibration`]: the scene score calibrated against the query's null
 //!   distribution, so one threshold serves any descriptor model;
 //! - [`fusion`]: bounded corroboration `B` and the fused score `Λ`;
+//! - [`feedback`]: what SLAM's geometric verdicts do to a ranking (known
+//!   look-alikes lose score, verified places gain it);
 //! - [`rank`](mod@rank): the orchestration of one query and the final selection.
 //!
 //! Supporting modules: [`params`] (every constant, configurable),
@@ -32,6 +34,7 @@ pub mod calibration;
 pub mod codes;
 pub mod contradiction;
 pub mod eligibility;
+pub mod feedback;
 pub mod fusion;
 pub mod kernels;
 pub mod matrix;
@@ -51,13 +54,16 @@ mod testing;
 pub use calibration::NullModel;
 pub use contradiction::{Contradiction, MissingObject, TextConflict};
 pub use eligibility::{is_eligible, CandidateMeta, MapRef, QueryContext, Scope};
+pub use feedback::{VerdictEffect, VerdictParams};
 pub use fusion::{corroboration, fuse, fuse_with_contradiction};
 pub use matrix::{dot, DescriptorMatrix};
 pub use memory::{KeyframeMemory, VecMemory};
 pub use ogtl::{ogtl, text_profile, text_profile_in, OgtlResult, TextMatch, TextProfile};
 pub use osrl::{object_affinity, osrl, spatial_kernel, ObjectMatch, OsrlResult};
 pub use params::{Calibration, Layers, ScanMode, TemporalMode, VprParams};
-pub use rank::{rank, rank_timed, select, QueryObservation, RankedCandidate, Ranking, StageTimes};
+pub use rank::{
+    rank, rank_timed, select, sort_ranked, QueryObservation, RankedCandidate, Ranking, StageTimes,
+};
 pub use scal::{cosine, modulated, scal_scores, scene_compatibility, ScalHit, ScalQuery};
 pub use scan::{scal_scan, ScalScan};
 pub use text::{distinctiveness, string_similarity};

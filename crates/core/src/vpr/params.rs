@@ -11,6 +11,7 @@ use std::collections::BTreeMap;
 
 use serde::{Deserialize, Serialize};
 
+pub use super::feedback::VerdictParams;
 pub use super::scan::ScanMode;
 
 /// Tunable constants of the scoring (defaults from the paper and `DESIGN.md`).
@@ -86,6 +87,9 @@ pub struct VprParams {
     /// Lower-case single words that make a string generic (near-zero
     /// distinctiveness) when every token of it is one of them.
     pub generic_words: Vec<String>,
+    /// How SLAM's geometric verdicts change rankings (`[vpr.verdicts]`,
+    /// see [`super::feedback`]).
+    pub verdicts: VerdictParams,
 }
 
 /// Common sign words that say nothing about which place this is.
@@ -165,6 +169,7 @@ impl Default for VprParams {
             class_weights: BTreeMap::new(),
             default_class_weight: 1.0,
             generic_words: GENERIC_WORDS.iter().map(|w| w.to_string()).collect(),
+            verdicts: VerdictParams::default(),
         }
     }
 }
@@ -256,6 +261,7 @@ impl VprParams {
                 ));
             }
         }
+        self.verdicts.validate()?;
         Ok(())
     }
 }

@@ -53,8 +53,17 @@ pub struct RankedCandidate {
     /// The paper's `Λ = S_s + (1 − S_s) B`, whatever the calibration.
     pub raw_score: f32,
     /// The score the threshold applies to and candidates are ordered by:
-    /// `scene_confidence (1 − C) + (1 − scene_confidence) B`.
+    /// `scene_confidence (1 − C) + (1 − scene_confidence) B`, then changed
+    /// by SLAM's verdicts where any apply ([`super::feedback`]).
     pub score: f32,
+    /// What the verdicts did to `score` (nothing until
+    /// [`super::feedback::apply`] runs).
+    pub verdict: super::feedback::VerdictEffect,
+}
+
+/// Puts candidates in their final order (after their scores changed).
+pub fn sort_ranked(ranked: &mut [RankedCandidate]) {
+    ranked.sort_unstable_by(by_fused_score);
 }
 
 /// Final order: `Λ` descending, then `S_s` descending, then lower row.
@@ -200,6 +209,7 @@ where
                 text,
                 contradiction: against,
                 corroboration: b,
+                verdict: Default::default(),
             }
         })
         .collect();
@@ -442,6 +452,7 @@ mod tests {
             scene_confidence: s_s,
             raw_score: score,
             score,
+            verdict: Default::default(),
         }
     }
 

@@ -1,0 +1,442 @@
+//! What SLAM's verdicts do to a ranking: known look-alikes lose score,
+//! verified places gain it.
+//!
+//! The SLAM system checks every candidate geometrically and reports the
+//! outcome ([`crate::verdict`]). Two places are "the same place" here when
+//! they are the same keyframe, or keyframes of the same map (robot, session,
+//! map id) whose stored positions are at most `radius_m` apart: the map's
+//! own poses, kept current by pose updates after loop correction. A verdict
+//! on the pair (a, b) *applies* to a query q and a candidate c when q is at
+//! a's place and c at b's, or the other way round.
+//!
+//! Each verdict weighs `w = 0.5^(age / half_life)`, its age counted from its
+//! report. For one candidate c of a query q:
+//!
+//! - `A` = Σ w over the acceptances that apply, `t_A` the newest of them;
+//! - `R` = Σ w over the rejections that apply and were reported after
+//!   `t_A` (an acceptance overrides every earlier rejection of the pair);
+//! - the look-alike penalty `P = ρ (1 − e^{−R})`, bounded by
+//!   `ρ = max_penalty < 1`: geometry also rejects true places under strong
+//!   appearance change, so no count of rejections is a veto;
+//! - the verified-place support `V = max(1 − e^{−A}, max_{c'} L(c, c')
+//!   Λ'_{c'})`, where `L(c, c') = 1 − e^{−A'}` with `A'` the acceptances
+//!   linking c's place and the place of another candidate c' of the same
+//!   query (the place graph), and `Λ'_{c'}` that candidate's penalised
+//!   score; a true place seen on two earlier visits that were verified to
+//!   match is corroborated by both;
+//! - the score becomes `Λ' = Λ (1 − P)` and then
+//!   `Λ'' = Λ' + (1 − Λ') g_v V`, in [0, 1] like every score.
+//!
+//! A query with no stored pose (a relocalisation from an image) has no
+//! place: only the place graph applies to it. The verdicts looked at are
+//! those naming a keyframe of the query's or a candidate's session (the
+//! only ones whose places can coincide with theirs).
+
+use serde::{Deserialize, Serialize};
+
+use crate::keyframe::KeyframeKey;
+use crate::verdict::Verdict;
+
+/// How verdicts change rankings (`[vpr.verdicts]`).
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(default, deny_unknown_fields)]
+pub struct VerdictParams {
+    /// Whether stored verdicts change rankings at all (they are stored
+    /// either way).
+    pub enabled: bool,
+    /// Largest distance, in map units (metres), between two keyframes of
+    /// one map that count as the same place: the ground-truth distance of
+    /// the evaluation protocol.
+    pub radius_m: f64,
+    /// `ρ`, the most a look-alike penalty takes off, in [0, 1).
+    pub max_penalty: f32,
+    /// `g_v`, gain of the verified-place support, in [0, 1].
+    pub support_gain: f32,
+    /// Whether acceptances linking two candidates of one query corroborate
+    /// both (the place graph); acceptances linking the query's own place
+    /// count regardless.
+    pub place_graph: bool,
+    /// Half-life of a verdict's weight, in hours.
+    pub half_life_hours: f64,
+}
+
+impl Default for VerdictParams {
+    fn default() -> Self {
+        VerdictParams {
+            enabled: true,
+            radius_m: 5.0,
+            max_penalty: 0.6,
+            support_gain: 0.5,
+            place_graph: true,
+            half_life_hours: 24.0 * 30.0,
+        }
+    }
+}
+
+impl VerdictParams {
+    /// Checks the ranges; names the offending key.
+    pub fn validate(&self) -> Result<(), String> {
+        if !(self.radius_m.is_finite() && self.radius_m >= 0.0) {
+            return Err("verdicts.radius_m must be a finite number >= 0".into());
+        }
+        if !(0.0..1.0).contains(&self.max_penalty) {
+            return Err("verdicts.max_penalty must be in [0, 1)".into());
+        }
+        if !(0.0..=1.0).contains(&self.support_gain) {
+            return Err("verdicts.support_gain must be in [0, 1]".into());
+        }
+        if !(self.half_life_hours.is_finite() && self.half_life_hours > 0.0) {
+            return Err("verdicts.half_life_hours must be a finite number > 0".into());
+        }
+        Ok(())
+    }
+
+    /// `w = 0.5^(age / half_life)` of a verdict reported at `reported_at`,
+    /// at `now` (both seconds since the epoch); a verdict from the future
+    /// (clocks of two replicas) weighs 1.
+    pub fn weight(&self, reported_at: f64, now: f64) -> f64 {
+        let age_hours = ((now - reported_at) / 3600.0).max(0.0);
+        0.5f64.powf(age_hours / self.half_life_hours)
+    }
+}
+
+/// Where a keyframe is: its key, map and stored position.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Place<'a> {
+    /// The keyframe.
+    pub key: &'a KeyframeKey,
+    /// Its map id within its session.
+    pub map_id: u64,
+    /// Its stored camera centre in that map.
+    pub position: [f64; 3],
+}
+
+impl Place<'_> {
+    /// The same keyframe, or the same map and at most `radius` apart.
+    pub fn near(&self, other: &Place, radius: f64) -> bool {
+        if self.key == other.key {
+            return true;
+        }
+        if self.map_id != other.map_id
+            || self.key.robot_id != other.key.robot_id
+            || self.key.session_id != other.key.session_id
+        {
+            return false;
+        }
+        let d2: f64 = (0..3)
+            .map(|i| (self.position[i] - other.position[i]).powi(2))
+            .sum();
+        d2 <= radius * radius
+    }
+}
+
+/// A verdict whose two keyframes were found, with its weight now.
+#[derive(Debug, Clone, Copy)]
+pub struct PlacedVerdict<'a> {
+    /// The query keyframe's place.
+    pub query: Place<'a>,
+    /// The candidate keyframe's place.
+    pub candidate: Place<'a>,
+    /// Whether it was accepted.
+    pub accepted: bool,
+    /// When it was reported (seconds since the epoch).
+    pub reported_at: f64,
+    /// `w`.
+    pub weight: f64,
+}
+
+impl<'a> PlacedVerdict<'a> {
+    /// The verdict placed by `place_of` (None when a keyframe is not stored).
+    pub fn new(
+        verdict: &'a Verdict,
+        params: &VerdictParams,
+        now: f64,
+        place_of: impl Fn(&'a KeyframeKey) -> Option<Place<'a>>,
+    ) -> Option<PlacedVerdict<'a>> {
+        Some(PlacedVerdict {
+            query: place_of(&verdict.query)?,
+            candidate: place_of(&verdict.candidate)?,
+            accepted: verdict.accepted,
+            reported_at: verdict.reported_at,
+            weight: params.weight(verdict.reported_at, now),
+        })
+    }
+
+    /// Whether it links places `x` and `y` (in either order).
+    fn links(&self, x: &Place, y: &Place, radius: f64) -> bool {
+        (self.query.near(x, radius) && self.candidate.near(y, radius))
+            || (self.query.near(y, radius) && self.candidate.near(x, radius))
+    }
+}
+
+/// What the verdicts did to one candidate.
+#[derive(Debug, Clone, Copy, Default, PartialEq)]
+pub struct VerdictEffect {
+    /// `P`, the look-alike penalty.
+    pub penalty: f32,
+    /// `V`, the verified-place support.
+    pub support: f32,
+    /// Rejections that counted in `R`.
+    pub rejections: u32,
+    /// Acceptances that applied to the query and the candidate.
+    pub acceptances: u32,
+}
+
+/// `(R, A, rejections counted, acceptances)` of the verdicts linking
+/// places `x` and `y`.
+fn pair_evidence(
+    x: &Place,
+    y: &Place,
+    verdicts: &[PlacedVerdict],
+    radius: f64,
+) -> (f64, f64, u32, u32) {
+    let linking: Vec<&PlacedVerdict> = verdicts.iter().filter(|v| v.links(x, y, radius)).collect();
+    let newest_acceptance = linking
+        .iter()
+        .filter(|v| v.accepted)
+        .map(|v| v.reported_at)
+        .fold(f64::NEG_INFINITY, f64::max);
+    let (mut r, mut a, mut nr, mut na) = (0.0, 0.0, 0, 0);
+    for v in linking {
+        if v.accepted {
+            a += v.weight;
+            na += 1;
+        } else if v.reported_at > newest_acceptance {
+            r += v.weight;
+            nr += 1;
+        }
+    }
+    (r, a, nr, na)
+}
+
+/// Applies the verdicts to the scores of one query's candidates (in the
+/// module's formulas), returning each candidate's effect; `scores[i]` is
+/// candidate `i`'s `Λ` on entry and its `Λ''` on return. `query` is None
+/// when the query has no stored place.
+pub fn apply(
+    params: &VerdictParams,
+    query: Option<&Place>,
+    candidates: &[Place],
+    scores: &mut [f32],
+    verdicts: &[PlacedVerdict],
+) -> Vec<VerdictEffect> {
+    let radius = params.radius_m;
+    let rho = f64::from(params.max_penalty);
+    let mut effects = vec![VerdictEffect::default(); candidates.len()];
+    if verdicts.is_empty() {
+        return effects;
+    }
+    let mut own_support = vec![0.0f64; candidates.len()];
+    for (i, c) in candidates.iter().enumerate() {
+        let Some(q) = query else { continue };
+        let (r, a, nr, na) = pair_evidence(q, c, verdicts, radius);
+        let penalty = rho * (1.0 - (-r).exp());
+        effects[i].penalty = penalty as f32;
+        effects[i].rejections = nr;
+        effects[i].acceptances = na;
+        own_support[i] = 1.0 - (-a).exp();
+        scores[i] = (f64::from(scores[i]) * (1.0 - penalty)) as f32;
+    }
+    let penalised = scores.to_vec();
+    for (i, c) in candidates.iter().enumerate() {
+        let mut support = own_support[i];
+        if params.place_graph {
+            for (j, other) in candidates.iter().enumerate() {
+                if j == i || other.near(c, radius) {
+                    continue;
+                }
+                let (_, a, _, _) = pair_evidence(c, other, verdicts, radius);
+                if a > 0.0 {
+                    support = support.max((1.0 - (-a).exp()) * f64::from(penalised[j]));
+                }
+            }
+        }
+        effects[i].support = support as f32;
+        let base = f64::from(penalised[i]);
+        scores[i] = (base + (1.0 - base) * f64::from(params.support_gain) * support) as f32;
+    }
+    effects
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::vpr::testing::close;
+
+    fn key(id: u64) -> KeyframeKey {
+        KeyframeKey {
+            robot_id: "r".into(),
+            session_id: "s".into(),
+            keyframe_id: id,
+        }
+    }
+
+    fn place(key: &KeyframeKey, x: f64) -> Place<'_> {
+        Place {
+            key,
+            map_id: 0,
+            position: [x, 0.0, 0.0],
+        }
+    }
+
+    fn placed<'a>(q: Place<'a>, c: Place<'a>, accepted: bool, at: f64) -> PlacedVerdict<'a> {
+        PlacedVerdict {
+            query: q,
+            candidate: c,
+            accepted,
+            reported_at: at,
+            weight: 1.0,
+        }
+    }
+
+    #[test]
+    fn weight_halves_every_half_life() {
+        let p = VerdictParams::default();
+        assert!(close(p.weight(0.0, 0.0) as f32, 1.0));
+        assert!(close(p.weight(0.0, 720.0 * 3600.0) as f32, 0.5));
+        assert!(close(p.weight(0.0, 1440.0 * 3600.0) as f32, 0.25));
+        assert!(close(p.weight(10.0, 0.0) as f32, 1.0));
+    }
+
+    #[test]
+    fn places_are_near_within_the_radius_of_one_map() {
+        let (a, b) = (key(1), key(2));
+        assert!(place(&a, 0.0).near(&place(&b, 5.0), 5.0));
+        assert!(!place(&a, 0.0).near(&place(&b, 5.01), 5.0));
+        let mut other_map = place(&b, 0.0);
+        other_map.map_id = 1;
+        assert!(!place(&a, 0.0).near(&other_map, 5.0));
+        // The same keyframe is always its own place.
+        let far = Place {
+            key: &a,
+            map_id: 7,
+            position: [100.0, 0.0, 0.0],
+        };
+        assert!(place(&a, 0.0).near(&far, 5.0));
+    }
+
+    /// A look-alike L (at x = 100) was rejected twice for queries at the
+    /// query's place (x = 0..2); the true place T (x = 50) was never judged.
+    #[test]
+    fn two_rejections_by_hand() {
+        let keys: Vec<KeyframeKey> = (0..10).map(key).collect();
+        let q = place(&keys[0], 0.0);
+        let l = place(&keys[1], 100.0);
+        let t = place(&keys[2], 50.0);
+        let verdicts = [
+            placed(place(&keys[3], 1.0), place(&keys[4], 101.0), false, 1.0),
+            placed(place(&keys[5], 2.0), place(&keys[6], 99.0), false, 2.0),
+        ];
+        let mut scores = [0.5, 0.45];
+        let effects = apply(
+            &VerdictParams::default(),
+            Some(&q),
+            &[l, t],
+            &mut scores,
+            &verdicts,
+        );
+        // P = 0.6 (1 - e^-2) = 0.6 * 0.864665 = 0.518799; 0.5 * (1 - P) = 0.240600.
+        assert!(close(effects[0].penalty, 0.518_799));
+        assert_eq!(effects[0].rejections, 2);
+        assert!(close(scores[0], 0.240_600));
+        // T untouched.
+        assert_eq!(effects[1], VerdictEffect::default());
+        assert!(close(scores[1], 0.45));
+    }
+
+    /// An acceptance after the rejections lifts the penalty and supports
+    /// the pair: V = 1 - e^-1 = 0.632121; 0.5 + 0.5 * 0.5 * 0.632121 = 0.658030.
+    #[test]
+    fn a_later_acceptance_overrides_by_hand() {
+        let keys: Vec<KeyframeKey> = (0..10).map(key).collect();
+        let q = place(&keys[0], 0.0);
+        let l = place(&keys[1], 100.0);
+        let verdicts = [
+            placed(place(&keys[3], 1.0), place(&keys[4], 101.0), false, 1.0),
+            placed(place(&keys[5], 2.0), place(&keys[6], 99.0), false, 2.0),
+            placed(place(&keys[7], 1.5), place(&keys[8], 100.5), true, 3.0),
+        ];
+        let mut scores = [0.5];
+        let effects = apply(
+            &VerdictParams::default(),
+            Some(&q),
+            &[l],
+            &mut scores,
+            &verdicts,
+        );
+        assert_eq!(effects[0].penalty, 0.0);
+        assert_eq!((effects[0].rejections, effects[0].acceptances), (0, 1));
+        assert!(close(effects[0].support, 0.632_121));
+        assert!(close(scores[0], 0.658_030));
+        // A rejection after that acceptance counts again: R = 1,
+        // P = 0.6 * 0.632121 = 0.379272, Λ' = 0.5 * 0.620728 = 0.310364,
+        // Λ'' = 0.310364 + 0.689636 * 0.5 * 0.632121 = 0.528330.
+        let mut later = verdicts.to_vec();
+        later.push(placed(
+            place(&keys[9], 0.5),
+            place(&keys[4], 101.0),
+            false,
+            4.0,
+        ));
+        let mut scores = [0.5];
+        let effects = apply(
+            &VerdictParams::default(),
+            Some(&q),
+            &[l],
+            &mut scores,
+            &later,
+        );
+        assert!(close(effects[0].penalty, 0.379_272));
+        assert!(close(scores[0], 0.528_330));
+    }
+
+    /// Two candidates at places linked by an acceptance corroborate each
+    /// other, by the other's score: V_0 = (1 - e^-1) * 0.4 = 0.252848,
+    /// Λ''_0 = 0.3 + 0.7 * 0.5 * 0.252848 = 0.388497; V_1 = 0.632121 * 0.3
+    /// = 0.189636, Λ''_1 = 0.4 + 0.6 * 0.5 * 0.189636 = 0.456891. A third
+    /// candidate linked to neither is untouched.
+    #[test]
+    fn place_graph_by_hand() {
+        let keys: Vec<KeyframeKey> = (0..10).map(key).collect();
+        let a = place(&keys[1], 100.0);
+        let b = place(&keys[2], 200.0);
+        let x = place(&keys[3], 300.0);
+        let verdicts = [placed(
+            place(&keys[4], 201.0),
+            place(&keys[5], 99.0),
+            true,
+            1.0,
+        )];
+        let mut scores = [0.3, 0.4, 0.35];
+        let effects = apply(
+            &VerdictParams::default(),
+            None,
+            &[a, b, x],
+            &mut scores,
+            &verdicts,
+        );
+        assert!(close(effects[0].support, 0.252_848));
+        assert!(close(scores[0], 0.388_497));
+        assert!(close(effects[1].support, 0.189_636));
+        assert!(close(scores[1], 0.456_891));
+        assert!(close(scores[2], 0.35));
+        // Off: nothing changes.
+        let params = VerdictParams {
+            place_graph: false,
+            ..VerdictParams::default()
+        };
+        let mut scores = [0.3, 0.4, 0.35];
+        apply(&params, None, &[a, b, x], &mut scores, &verdicts);
+        assert_eq!(scores, [0.3, 0.4, 0.35]);
+    }
+
+    #[test]
+    fn validation_names_the_key() {
+        let bad = VerdictParams {
+            max_penalty: 1.0,
+            ..VerdictParams::default()
+        };
+        assert!(bad.validate().unwrap_err().contains("max_penalty"));
+        assert!(VerdictParams::default().validate().is_ok());
+    }
+}
