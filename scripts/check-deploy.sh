@@ -199,6 +199,17 @@ if start_humem config-typo --config "$TMP/typo.toml" 2>/dev/null; then
 fi
 grep -q data_dri "$TMP/config-typo.err" || die "humem refused the typo'd configuration without naming the key"
 echo "a typo (data_dri) is refused: $(grep -o 'unknown field.*' "$TMP/config-typo.err" | head -1)"
+# The settings the ORB-SLAM3 harness gives its server (client-cpp/orbslam3/harness/server-env.sh,
+# used by run.sh) for the data sets' cameras: `humem serve` must accept them, or the harness cannot start.
+for size in "512 288" "1241 376" "160 120"; do
+    mapfile -t harness_env < <(client-cpp/orbslam3/harness/server-env.sh $size)
+    SERVER_ENV=(HUMEM_SERVER__LISTEN=127.0.0.1:0 HUMEM_METRICS__LISTEN=127.0.0.1:0
+                HUMEM_STORE__DATA_DIR="$TMP/harness-env-data" HUMEM_PERCEPTION__MODELS_DIR="$REPO/models"
+                "${harness_env[@]}")
+    start_humem harness-env || die "humem serve refused the harness's settings for a ${size/ /x} camera: ${harness_env[*]} (log above)"
+    stop_humem || die "humem did not stop cleanly after the harness's settings"
+    echo "the ORB-SLAM3 harness's server settings for a ${size/ /x} camera are accepted: ${harness_env[*]}"
+done
 
 # --- 7. live: humem + load generator + Prometheus -----------------------------------------------
 step "live: humem serve + humem load + Prometheus, then every dashboard query and alert operand"

@@ -182,6 +182,44 @@ async fn writes_through_any_replica_reach_every_replica() {
         "nothing invalid entered the log"
     );
 
+    // A verdict through one replica arrives on every replica, through the
+    // log; one naming a keyframe no replica stores is refused alike.
+    let verdict = |candidate: u64| proto::ReportVerificationRequest {
+        robot_id: "r".into(),
+        session_id: "s".into(),
+        keyframe_id: Some(newest),
+        candidate: Some(proto::KeyframeRef {
+            robot_id: "r".into(),
+            session_id: "s".into(),
+            keyframe_id: Some(candidate),
+        }),
+        kind: proto::VerificationKind::Loop as i32,
+        outcome: proto::VerificationOutcome::Rejected as i32,
+        ..Default::default()
+    };
+    let reply = replicas[0]
+        .client()
+        .await
+        .report_verification(verdict(3))
+        .await
+        .unwrap()
+        .into_inner();
+    assert_eq!(reply.log_sequence, last + 2);
+    for server in &replicas {
+        wait_for_position(server, reply.log_sequence, Duration::from_secs(5)).await;
+        assert_eq!(server.stats().await.verdicts, 1);
+    }
+    let status = replicas[1]
+        .client()
+        .await
+        .report_verification(verdict(5000))
+        .await
+        .unwrap_err();
+    assert_eq!(status.code(), Code::NotFound, "{status:?}");
+    for server in &replicas {
+        assert_eq!(server.stats().await.verdicts, 1);
+    }
+
     // A position no replica has reached: UNAVAILABLE within the deadline.
     let mut request = scenes::query_stored("r", "s", newest);
     request.min_log_sequence = Some(1_000_000);

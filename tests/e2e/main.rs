@@ -25,3 +25,4 @@ mod quotas;
 mod retrieval;
 mod text_recall;
 mod tls;
+mod verdicts;

@@ -40,7 +40,7 @@ pub fn image_paths(dir: &Path) -> anyhow::Result<Vec<PathBuf>> {
 }
 
 /// Poses of an image folder, if a pose file lies beside it.
-fn poses(dir: &Path, folder: &str) -> anyhow::Result<Option<Vec<truth::Pose>>> {
+pub fn poses(dir: &Path, folder: &str) -> anyhow::Result<Option<Vec<truth::Pose>>> {
     let tum = dir.join(format!("{folder}_poses.txt"));
     if tum.is_file() {
         let text = std::fs::read_to_string(&tum)?;

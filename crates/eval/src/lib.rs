@@ -19,6 +19,8 @@
 //! - [`remote`]: the run measured through a service over gRPC (`--server`);
 //! - [`run`]: the run itself, its table, JSON and report;
 //! - [`text_recall`]: how often OCR reads the signs in view (`humem text-recall`);
+//! - [`verdict_replay`]: the stream replayed with the ground truth as
+//!   geometric verification, without and with verdicts (`--replay-verdicts`);
 //! - [`bench`]: time per model and batch size (`humem bench perception`).
 
 pub mod annotations;
@@ -35,3 +37,4 @@ pub mod run;
 pub mod scan_bench;
 pub mod text_recall;
 pub mod truth;
+pub mod verdict_replay;

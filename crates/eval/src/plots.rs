@@ -363,6 +363,7 @@ mod tests {
             max_candidates: 5,
             objects: crate::run::ObjectSource::Models,
             grey: false,
+            verdict_replay: None,
             conditions: vec![
                 ConditionResult {
                     condition: "clean".into(),

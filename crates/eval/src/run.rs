@@ -97,6 +97,18 @@ pub struct EvalArgs {
     /// ITU-R 601 luma), as ORB-SLAM3 does; in-process only.
     #[arg(long)]
     pub grey: bool,
+    /// Also stream the data set as the ORB-SLAM3 plugin does, with the
+    /// ground truth standing in for geometric verification, without and
+    /// with SLAM's verdicts fed back (see `verdict_replay`); in-process only.
+    #[arg(long)]
+    pub replay_verdicts: bool,
+    /// With --replay-verdicts: share of true places that geometry rejects
+    /// all the same.
+    #[arg(long, default_value_t = 0.1)]
+    pub wrong_rejections: f64,
+    /// With --replay-verdicts: seed of the wrong rejections' draws.
+    #[arg(long, default_value_t = 1)]
+    pub replay_seed: u64,
 }
 
 /// Source of the objects of each image.
@@ -178,6 +190,9 @@ pub struct EvalReport {
     pub grey: bool,
     /// One entry per condition, `clean` first.
     pub conditions: Vec<ConditionResult>,
+    /// `--replay-verdicts`: the stream without and with verdicts.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub verdict_replay: Option<Vec<super::verdict_replay::ReplayRow>>,
 }
 
 /// What one method gave under one condition, before it is summarised.
@@ -351,6 +366,47 @@ fn stored(robot: &str, index: usize, features: &Features) -> SemanticKeyframe {
 }
 
 impl LocalDatabase {
+    /// `--replay-verdicts` on the clean images.
+    async fn replay_verdicts(
+        &self,
+        config: &Config,
+        perception: &Perception,
+        args: &EvalArgs,
+        dataset: &Dataset,
+    ) -> anyhow::Result<Vec<super::verdict_replay::ReplayRow>> {
+        if !(0.0..=1.0).contains(&args.wrong_rejections) {
+            anyhow::bail!("--wrong-rejections must be in [0, 1]");
+        }
+        let fresh;
+        let queries: &[Perceived] = match dataset.kind {
+            Kind::Loop => &self.references,
+            Kind::Pairs => {
+                fresh = perceive_all(
+                    perception,
+                    &dataset.queries,
+                    None,
+                    self.annotations.as_ref(),
+                    self.grey,
+                    "queries (replay)",
+                )
+                .await?;
+                &fresh
+            }
+        };
+        let features = |p: &[Perceived]| p.iter().map(|p| p.features.clone()).collect::<Vec<_>>();
+        super::verdict_replay::replay(
+            &config.vpr,
+            &args.dataset,
+            dataset,
+            &features(&self.references),
+            &features(queries),
+            super::verdict_replay::ReplayOptions {
+                wrong_rejections: args.wrong_rejections,
+                seed: args.replay_seed,
+            },
+        )
+    }
+
     async fn build(
         perception: &Perception,
         dataset: &Dataset,
@@ -588,6 +644,7 @@ pub async fn run(config: Config, args: EvalArgs) -> anyhow::Result<()> {
         objects: args.objects,
         grey: args.grey,
         conditions: Vec::new(),
+        verdict_replay: None,
     };
     for degradation in conditions {
         let condition = super::degrade::condition_name(degradation);
@@ -614,6 +671,16 @@ pub async fn run(config: Config, args: EvalArgs) -> anyhow::Result<()> {
         report
             .conditions
             .push(ConditionResult { condition, results });
+    }
+    if args.replay_verdicts {
+        let Backend::Local(local) = &backend else {
+            anyhow::bail!("--replay-verdicts runs in-process only, not with --server");
+        };
+        let (perception, database) = &**local;
+        let rows = database
+            .replay_verdicts(&config, perception, &args, &dataset)
+            .await?;
+        report.verdict_replay = Some(rows);
     }
     if let Backend::Remote(remote) = &mut backend {
         let erased = remote.clean_up().await?;
@@ -790,6 +857,17 @@ fn print_table(report: &EvalReport) {
     for row in precision_rows(report) {
         println!("{row}");
     }
+    if let Some(rows) = &report.verdict_replay {
+        println!("\n{}", replay_heading(report));
+        print!("{}", super::verdict_replay::table(rows));
+    }
+}
+
+fn replay_heading(report: &EvalReport) -> String {
+    format!(
+        "Streamed as the ORB-SLAM3 plugin streams, the ground truth as geometric verification (Full, at the {}):",
+        operating_point(report)
+    )
 }
 
 fn markdown(report: &EvalReport) -> String {
@@ -816,6 +894,13 @@ fn markdown(report: &EvalReport) -> String {
     for row in precision_rows(report) {
         md.push_str(&row);
         md.push('\n');
+    }
+    if let Some(rows) = &report.verdict_replay {
+        md.push_str(&format!(
+            "\n{}\n\n{}",
+            replay_heading(report),
+            super::verdict_replay::table(rows)
+        ));
     }
     md.push_str(
         "\n![Recall@1 against median latency](accuracy_latency.png)\n\n![Recall per condition](recall_per_condition.png)\n\n![Precision against recall](precision_recall.png)\n",

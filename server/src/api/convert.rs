@@ -85,6 +85,10 @@ pub fn candidate(c: &Candidate) -> proto::Candidate {
             contradiction: c.contradiction.score,
             text_contradiction: c.contradiction.text,
             object_absence: c.contradiction.absence,
+            verdict_penalty: c.verdict.penalty,
+            verdict_support: c.verdict.support,
+            verdict_rejections: c.verdict.rejections,
+            verdict_acceptances: c.verdict.acceptances,
             text_conflicts: c
                 .text_conflicts
                 .iter()
@@ -213,6 +217,14 @@ fn store_status(e: StoreError) -> Status {
             status
         }
         StoreError::WriterGone => Status::unavailable(e.to_string()),
+        StoreError::UnknownKeyframe { role, .. } => {
+            let field = if role == "query" {
+                "keyframe_id"
+            } else {
+                "candidate"
+            };
+            Status::not_found(format!("{field}: {e}"))
+        }
         _ => {
             tracing::error!(error = %e, "store failure");
             Status::internal(e.to_string())

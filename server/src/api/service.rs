@@ -249,6 +249,48 @@ impl PlaceRecognition for PlaceRecognitionService {
         }))
     }
 
+    #[tracing::instrument(skip_all, fields(robot, kind, accepted))]
+    async fn report_verification(
+        &self,
+        request: Request<proto::ReportVerificationRequest>,
+    ) -> Result<Response<proto::ReportVerificationResponse>, Status> {
+        let caller = self.auth.caller("ReportVerification", &request)?;
+        let mut verdict = validate::verification(request.get_ref())?;
+        // A verdict is a write of the robot that asked the query.
+        self.auth.check_acts_for(
+            "ReportVerification",
+            &caller,
+            "robot_id",
+            &verdict.query.robot_id,
+        )?;
+        // It may only name a candidate the robot may read (one HuMem could
+        // have proposed to it).
+        if let Some(readable) = caller.readable_robots(self.auth.groups()) {
+            if !readable.contains(&verdict.candidate.robot_id) {
+                return Err(Status::permission_denied(format!(
+                    "candidate.robot_id: this caller may not read robot {:?}",
+                    verdict.candidate.robot_id
+                )));
+            }
+        }
+        let span = tracing::Span::current();
+        span.record("robot", verdict.query.robot_id.as_str());
+        span.record("kind", tracing::field::debug(verdict.kind));
+        span.record("accepted", verdict.accepted);
+        verdict.reported_at = std::time::SystemTime::now()
+            .duration_since(std::time::UNIX_EPOCH)
+            .map_or(0.0, |d| d.as_secs_f64());
+        let stored = self
+            .pipeline
+            .apply(Mutation::ReportVerdict(verdict))
+            .await?;
+        Ok(Response::new(proto::ReportVerificationResponse {
+            replaced: stored.outcome.replaced > 0,
+            store_verdicts: stored.outcome.store_verdicts,
+            log_sequence: stored.log_sequence,
+        }))
+    }
+
     async fn stats(
         &self,
         request: Request<proto::StatsRequest>,
@@ -256,7 +298,7 @@ impl PlaceRecognition for PlaceRecognitionService {
         let caller = self.auth.caller("Stats", &request)?;
         // Only the maps the caller may read are listed.
         let readable = caller.readable_robots(self.auth.groups());
-        let (keyframes, descriptor_dim, maps) = {
+        let (keyframes, descriptor_dim, maps, verdicts) = {
             let index = self.pipeline.store().index();
             let maps = index
                 .map_counts()
@@ -273,7 +315,12 @@ impl PlaceRecognition for PlaceRecognitionService {
                     keyframes: count as u64,
                 })
                 .collect();
-            (index.len() as u64, index.dim() as u32, maps)
+            (
+                index.len() as u64,
+                index.dim() as u32,
+                maps,
+                index.verdicts().len() as u64,
+            )
         };
         Ok(Response::new(proto::StatsResponse {
             keyframes,
@@ -283,6 +330,7 @@ impl PlaceRecognition for PlaceRecognitionService {
             format_version: humem_store::STORE_FORMAT,
             server_version: env!("CARGO_PKG_VERSION").into(),
             log_position: self.pipeline.log_position(),
+            verdicts,
         }))
     }
 }

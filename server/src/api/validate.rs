@@ -18,7 +18,7 @@ use humem_core::keyframe::{
 };
 use humem_core::vpr::{Layers, MapRef, Scope};
 use humem_perception::ImageInput;
-use humem_store::PoseUpdate;
+use humem_store::{PoseUpdate, RelativeTransform, Verdict, VerificationKind};
 
 /// Largest descriptor accepted.
 pub const MAX_DESCRIPTOR_LEN: usize = 8192;
@@ -432,6 +432,59 @@ pub fn erase(r: &proto::EraseRequest) -> Result<(SessionKey, Vec<u64>)> {
         session("", &r.robot_id, &r.session_id)?,
         ids("keyframe_ids", &r.keyframe_ids, true)?,
     ))
+}
+
+/// A verification verdict, as reported: everything but the receipt time,
+/// which the server stamps (`reported_at` is 0 here).
+pub fn verification(r: &proto::ReportVerificationRequest) -> Result<Verdict> {
+    let session = session("", &r.robot_id, &r.session_id)?;
+    let keyframe_id = required("keyframe_id", r.keyframe_id)?;
+    let c = required("candidate", r.candidate.as_ref())?;
+    let candidate = self::session("candidate.", &c.robot_id, &c.session_id)?
+        .keyframe(required("candidate.keyframe_id", c.keyframe_id)?);
+    let kind = match enumeration::<proto::VerificationKind>("kind", r.kind)? {
+        proto::VerificationKind::Unspecified => return Err(invalid("kind", "required")),
+        proto::VerificationKind::Loop => VerificationKind::Loop,
+        proto::VerificationKind::Merge => VerificationKind::Merge,
+        proto::VerificationKind::Relocalisation => VerificationKind::Relocalisation,
+    };
+    let accepted = match enumeration::<proto::VerificationOutcome>("outcome", r.outcome)? {
+        proto::VerificationOutcome::Unspecified => return Err(invalid("outcome", "required")),
+        proto::VerificationOutcome::Accepted => true,
+        proto::VerificationOutcome::Rejected => false,
+    };
+    let query = session.keyframe(keyframe_id);
+    if query == candidate {
+        return Err(invalid("candidate", "is the query keyframe itself"));
+    }
+    let relative = match (&r.relative, accepted) {
+        (Some(t), true) => {
+            let scale = if t.scale == 0.0 {
+                1.0
+            } else {
+                finite("relative.scale", t.scale)?
+            };
+            if scale <= 0.0 {
+                return Err(invalid("relative.scale", format!("{scale} is not > 0")));
+            }
+            Some(RelativeTransform {
+                pose: pose("relative.pose", t.pose.as_ref())?,
+                scale,
+            })
+        }
+        _ => None,
+    };
+    let score = r.score.map(|s| unit_interval("score", s)).transpose()?;
+    Ok(Verdict {
+        query,
+        candidate,
+        kind,
+        accepted,
+        relative,
+        score,
+        inliers: r.inliers,
+        reported_at: 0.0,
+    })
 }
 
 /// Pose updates.

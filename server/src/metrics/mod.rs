@@ -23,7 +23,7 @@ use humem_core::observe::{QueueObserver, SharedObserver};
 use humem_store::{IndexSource, Store};
 
 /// The API's methods, as the `rpc` label of every per-RPC metric.
-pub const RPCS: [&str; 8] = [
+pub const RPCS: [&str; 9] = [
     "Insert",
     "InsertBatch",
     "Query",
@@ -32,6 +32,7 @@ pub const RPCS: [&str; 8] = [
     "ResetSession",
     "UpdatePoses",
     "Stats",
+    "ReportVerification",
 ];
 
 /// The registry every HuMem metric is in.

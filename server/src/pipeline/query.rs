@@ -10,10 +10,11 @@ use std::time::Duration;
 
 use super::request::{InvalidField, Observation, QuerySpec};
 use humem_core::index::Index;
-use humem_core::keyframe::{Features, KeyframeKey, ObjectObservation, Pose};
+use humem_core::keyframe::{Features, KeyframeKey, ObjectObservation, Pose, SessionKey};
+use humem_core::vpr::feedback::{self, Place, PlacedVerdict};
 use humem_core::vpr::{
     self, Contradiction, KeyframeMemory, MissingObject, NullModel, ObjectMatch, QueryContext,
-    QueryObservation, ScalHit, Scope, TextConflict, TextMatch, VprParams,
+    QueryObservation, ScalHit, Scope, TextConflict, TextMatch, VerdictEffect, VprParams,
 };
 
 /// Why a query cannot be answered.
@@ -111,6 +112,8 @@ pub struct Candidate {
     pub text_conflicts: Vec<ConflictPair>,
     /// Distinctive objects without a counterpart, with their classes.
     pub missing_objects: Vec<MissingPair>,
+    /// What SLAM's verdicts did to the score.
+    pub verdict: VerdictEffect,
 }
 
 /// The answer to a query.
@@ -154,10 +157,13 @@ pub fn run(
     let eligible = |row: usize| rule.test(row);
     let query = QueryObservation { history };
     let vpr::Ranking {
-        candidates: ranked,
-        times: timings,
+        candidates: mut ranked,
+        times: mut timings,
         eligible: eligible_count,
     } = vpr::rank_timed(params, spec.layers, &query, index, &eligible);
+    let clock = std::time::Instant::now();
+    apply_verdicts(index, params, stored_row, &mut ranked, unix_now());
+    timings.fusion += clock.elapsed();
     let candidates = vpr::select(ranked, spec.threshold, spec.top_n)
         .into_iter()
         .map(|r| candidate(index, &current, r))
@@ -172,6 +178,70 @@ pub fn run(
         timings: timings.stages().to_vec(),
         threshold: spec.threshold,
     })
+}
+
+/// Seconds since the Unix epoch, the clock verdicts decay by.
+fn unix_now() -> f64 {
+    std::time::SystemTime::now()
+        .duration_since(std::time::UNIX_EPOCH)
+        .map_or(0.0, |d| d.as_secs_f64())
+}
+
+/// Changes the ranked candidates' scores by SLAM's stored verdicts
+/// ([`vpr::feedback`]) and puts them back in order. The query's place is
+/// its stored keyframe's, when it is one; the verdicts looked at are those
+/// naming a keyframe of the query's or a candidate's session.
+pub fn apply_verdicts(
+    index: &Index,
+    params: &VprParams,
+    stored_row: Option<usize>,
+    ranked: &mut [vpr::RankedCandidate],
+    now: f64,
+) {
+    let book = index.verdicts();
+    if !params.verdicts.enabled || book.is_empty() || ranked.is_empty() {
+        return;
+    }
+    let query = stored_row.and_then(|row| index.place(&index.meta(row).key));
+    let candidates: Vec<Place> = ranked
+        .iter()
+        .map(|r| {
+            let meta = index.meta(r.row);
+            Place {
+                key: &meta.key,
+                map_id: meta.map_id,
+                position: meta.pose.translation,
+            }
+        })
+        .collect();
+    let sessions: Vec<SessionKey> = query
+        .iter()
+        .chain(&candidates)
+        .map(|p| p.key.session())
+        .collect::<std::collections::BTreeSet<_>>()
+        .into_iter()
+        .collect();
+    let placed: Vec<PlacedVerdict> = book
+        .touching(&sessions)
+        .into_iter()
+        .filter_map(|v| PlacedVerdict::new(v, &params.verdicts, now, |k| index.place(k)))
+        .collect();
+    if placed.is_empty() {
+        return;
+    }
+    let mut scores: Vec<f32> = ranked.iter().map(|r| r.score).collect();
+    let effects = feedback::apply(
+        &params.verdicts,
+        query.as_ref(),
+        &candidates,
+        &mut scores,
+        &placed,
+    );
+    for ((r, score), effect) in ranked.iter_mut().zip(scores).zip(effects) {
+        r.score = score;
+        r.verdict = effect;
+    }
+    vpr::sort_ranked(ranked);
 }
 
 /// What the query shows: the features it sent, or else those of the stored
@@ -347,6 +417,7 @@ fn candidate(index: &Index, current: &Features, r: vpr::RankedCandidate) -> Cand
         contradiction: r.contradiction,
         text_conflicts,
         missing_objects,
+        verdict: r.verdict,
     }
 }
 

@@ -1,0 +1,349 @@
+//! `humem eval --replay-verdicts`: the data set streamed as the ORB-SLAM3
+//! plugin streams it, with the ground truth standing in for geometric
+//! verification, once without verdicts and once with them.
+//!
+//! Every frame is stored as a keyframe as it comes and then asked about
+//! (a loop: `SCOPE_SAME_MAP` with the data set's frame gap; pairs: the
+//! references are stored first, then each query frame is stored and asked
+//! about against them). The candidates above the operating point (threshold
+//! and `max_candidates` of `[vpr]`) are what a SLAM system would verify:
+//! each one is "accepted" when the ground truth calls it a true place and
+//! "rejected" otherwise, and a configurable share of the true places is
+//! rejected all the same (`--wrong-rejections`, geometry's misses under
+//! appearance change), drawn from a seeded generator. With verdicts on, each
+//! verdict is recorded in the index exactly as the store records a
+//! `ReportVerification`, and the next queries are ranked through the
+//! service's own query path, which applies them.
+//!
+//! Keyframe poses are the data set's poses where it has them (a map already
+//! corrected by its loop closures). Where it has none, each frame stands at
+//! 1 m per frame along a line: odometry that is locally right and never
+//! corrected, so a revisit is never near its first visit by pose — the
+//! pessimistic case for the verdicts' place tests.
+//!
+//! Results are grouped by visit: 1 = the first time at a place (a loop
+//! query without an earlier true place, or a pairs query without a match),
+//! 2 = one earlier pass over it, and so on (the earlier passes are the runs
+//! of the query's true places separated by more than half the frame gap).
+
+use std::collections::BTreeMap;
+
+use anyhow::Context;
+use serde::Serialize;
+
+use super::dataset::{self, Dataset};
+use super::metrics;
+use super::precision::{self, OperatingPoint, ScoredQuery};
+use super::truth::Kind;
+use humem_core::index::Index;
+use humem_core::keyframe::{Features, KeyframeKey, Pose, SemanticKeyframe, SessionKey};
+use humem_core::synthetic::Rng;
+use humem_core::verdict::{Verdict, VerificationKind};
+use humem_core::vpr::{Layers, Scope, VprParams};
+use humem_server::pipeline::query;
+use humem_server::pipeline::request::{QueryKind, QuerySpec};
+
+/// Options of the replay.
+#[derive(Debug, Clone, Copy)]
+pub struct ReplayOptions {
+    /// Share of true places that geometry rejects all the same, in [0, 1].
+    pub wrong_rejections: f64,
+    /// Seed of the draws of those rejections.
+    pub seed: u64,
+}
+
+/// One row of the replay table.
+#[derive(Debug, Clone, Serialize)]
+pub struct ReplayRow {
+    /// `without verdicts` or `with verdicts`.
+    pub pass: String,
+    /// `1`, `2`, … (see the module doc) or `all`.
+    pub visit: String,
+    /// Queries in the group.
+    pub queries: usize,
+    /// Of those, queries with a true place.
+    pub with_match: usize,
+    /// Queries without a true place that were answered (any candidate above
+    /// the threshold), over those queries.
+    pub false_alarm_rate: f64,
+    /// Answered false alarms.
+    pub false_alarms: usize,
+    /// Recall@1 over the queries with a true place, whatever the threshold.
+    pub recall_at_1: f64,
+    /// Queries with a true place whose top candidate is true and above the
+    /// threshold, over those queries.
+    pub recall_at_threshold: f64,
+    /// True candidates over candidates sent to verification.
+    pub candidate_precision: f64,
+    /// Candidates sent to verification (= verdicts reported, with verdicts).
+    pub candidates: usize,
+    /// Verdicts that were rejections of true places (geometry's misses).
+    pub wrong_rejections: usize,
+}
+
+/// A keyframe of the stream.
+fn keyframe(robot: &str, index: usize, features: &Features, pose: Pose) -> SemanticKeyframe {
+    SemanticKeyframe {
+        key: KeyframeKey {
+            robot_id: robot.into(),
+            session_id: String::new(),
+            keyframe_id: index as u64,
+        },
+        frame_id: index as u64,
+        timestamp: index as f64,
+        map_id: 0,
+        pose,
+        features: features.clone(),
+    }
+}
+
+/// The data set's poses of `folder`, or the 1 m-per-frame line.
+fn poses_or_line(dir: &std::path::Path, folder: &str, len: usize) -> anyhow::Result<Vec<Pose>> {
+    match dataset::poses(dir, folder)? {
+        Some(poses) if poses.len() == len => Ok(poses),
+        Some(poses) => anyhow::bail!(
+            "{}: {} poses for {len} images in {folder}/",
+            dir.display(),
+            poses.len()
+        ),
+        None => Ok((0..len)
+            .map(|i| Pose {
+                translation: [i as f64, 0.0, 0.0],
+                ..Pose::default()
+            })
+            .collect()),
+    }
+}
+
+/// Which visit of its place a query is: 1 + the earlier passes over it.
+pub fn visit_of(matches: Option<&Vec<usize>>, gap: usize) -> usize {
+    let Some(m) = matches.filter(|m| !m.is_empty()) else {
+        return 1;
+    };
+    let mut sorted = m.clone();
+    sorted.sort_unstable();
+    let split = (gap / 2).max(1);
+    1 + 1 + sorted.windows(2).filter(|w| w[1] - w[0] > split).count()
+}
+
+const ROBOT: &str = "drive";
+const REFERENCE_ROBOT: &str = "reference";
+
+/// Streams the data set twice (without, then with verdicts) and returns
+/// the table's rows. `references` and `queries` are the perceived features
+/// (for a loop, the same frames).
+pub fn replay(
+    params: &VprParams,
+    dir: &std::path::Path,
+    dataset: &Dataset,
+    references: &[Features],
+    queries: &[Features],
+    options: ReplayOptions,
+) -> anyhow::Result<Vec<ReplayRow>> {
+    let point = OperatingPoint {
+        threshold: params.threshold(),
+        max_candidates: params.max_candidates,
+    };
+    let (reference_poses, query_poses) = match dataset.kind {
+        Kind::Loop => {
+            let p = poses_or_line(dir, "sequence", references.len())?;
+            (p.clone(), p)
+        }
+        Kind::Pairs => (
+            poses_or_line(dir, "reference", references.len())?,
+            poses_or_line(dir, "query", queries.len())?,
+        ),
+    };
+    let mut rows = Vec::new();
+    for with_verdicts in [false, true] {
+        let mut params = params.clone();
+        params.verdicts.enabled = with_verdicts;
+        let mut rng = Rng::new(options.seed);
+        let dim = references.first().map_or(0, |f| f.descriptor.len());
+        let mut index = Index::new(dim);
+        let (query_robot, scope, gap) = match dataset.kind {
+            Kind::Loop => (ROBOT, Scope::SameMap, dataset.min_frame_gap),
+            Kind::Pairs => {
+                for (i, f) in references.iter().enumerate() {
+                    index.upsert(keyframe(REFERENCE_ROBOT, i, f, reference_poses[i]));
+                }
+                (
+                    ROBOT,
+                    Scope::Listed {
+                        robot_ids: vec![REFERENCE_ROBOT.into()],
+                        maps: Vec::new(),
+                    },
+                    0,
+                )
+            }
+        };
+        // Per visit: the scored queries, their rankings and wrong rejections.
+        let mut groups: BTreeMap<usize, Group> = BTreeMap::new();
+        for q in 0..queries.len() {
+            index.upsert(keyframe(query_robot, q, &queries[q], query_poses[q]));
+            if dataset.kind == Kind::Loop && q < gap {
+                continue; // nothing is eligible yet
+            }
+            let spec = QuerySpec {
+                session: SessionKey {
+                    robot_id: query_robot.into(),
+                    session_id: String::new(),
+                },
+                map_id: None,
+                frame_id: None,
+                keyframe_id: Some(q as u64),
+                observation: None,
+                predecessor_ids: Vec::new(),
+                scope: scope.clone(),
+                readable_robots: None,
+                min_frame_gap: gap as u64,
+                top_n: params.top_k,
+                threshold: 0.0,
+                layers: Layers::FULL,
+                kind: QueryKind::LoopClosure,
+            };
+            let outcome =
+                query::run(&index, &params, &spec).with_context(|| format!("ranking query {q}"))?;
+            let matches = dataset.matches.get(&q);
+            let is_true = |c: &query::Candidate| {
+                matches.is_some_and(|m| m.contains(&(c.key.keyframe_id as usize)))
+            };
+            let group = groups.entry(visit_of(matches, gap)).or_default();
+            group.scored.push(ScoredQuery {
+                ranked: outcome
+                    .candidates
+                    .iter()
+                    .map(|c| (c.score, is_true(c)))
+                    .collect(),
+                has_match: matches.is_some_and(|m| !m.is_empty()),
+            });
+            if let Some(m) = matches.filter(|m| !m.is_empty()) {
+                group.answers.push((
+                    outcome
+                        .candidates
+                        .iter()
+                        .map(|c| c.key.keyframe_id as usize)
+                        .collect(),
+                    m.clone(),
+                ));
+            }
+            let sent = outcome
+                .candidates
+                .iter()
+                .filter(|c| c.score > point.threshold)
+                .take(point.max_candidates);
+            let mut verdicts = Vec::new();
+            for c in sent {
+                let truth = is_true(c);
+                // Drawn for every candidate sent, in both passes alike.
+                let missed = (rng.next() as f64 / u64::MAX as f64) < options.wrong_rejections;
+                if truth && missed {
+                    group.wrong_rejections += 1;
+                }
+                verdicts.push(Verdict {
+                    query: spec.session.keyframe(q as u64),
+                    candidate: c.key.clone(),
+                    kind: VerificationKind::Loop,
+                    accepted: truth && !missed,
+                    relative: None,
+                    score: Some(c.score),
+                    inliers: 0,
+                    reported_at: now(),
+                });
+            }
+            if with_verdicts {
+                for v in verdicts {
+                    index.record_verdict(v);
+                }
+            }
+        }
+        let pass = if with_verdicts {
+            "with verdicts"
+        } else {
+            "without verdicts"
+        };
+        let mut all = Group::default();
+        for (visit, group) in &groups {
+            rows.push(group.row(pass, &visit.to_string(), point));
+            all.scored.extend(group.scored.iter().cloned());
+            all.answers.extend(group.answers.iter().cloned());
+            all.wrong_rejections += group.wrong_rejections;
+        }
+        rows.push(all.row(pass, "all", point));
+    }
+    Ok(rows)
+}
+
+fn now() -> f64 {
+    std::time::SystemTime::now()
+        .duration_since(std::time::UNIX_EPOCH)
+        .map_or(0.0, |d| d.as_secs_f64())
+}
+
+/// The queries of one visit class.
+#[derive(Debug, Default)]
+struct Group {
+    scored: Vec<ScoredQuery>,
+    answers: Vec<(Vec<usize>, Vec<usize>)>,
+    wrong_rejections: usize,
+}
+
+impl Group {
+    fn row(&self, pass: &str, visit: &str, point: OperatingPoint) -> ReplayRow {
+        let p = precision::precision(&self.scored, point);
+        let r = metrics::retrieval(&self.answers);
+        ReplayRow {
+            pass: pass.into(),
+            visit: visit.into(),
+            queries: p.queries,
+            with_match: p.with_match,
+            false_alarm_rate: p.false_alarm_rate,
+            false_alarms: p.false_no_match,
+            recall_at_1: r.recall_at_1,
+            recall_at_threshold: p.recall_at_threshold,
+            candidate_precision: p.candidate_precision,
+            candidates: p.candidates,
+            wrong_rejections: self.wrong_rejections,
+        }
+    }
+}
+
+/// The rows as a Markdown table.
+pub fn table(rows: &[ReplayRow]) -> String {
+    let mut out = String::from(
+        "| pass | visit | queries | with a true place | false alarms | R@1 | recall at threshold | candidate precision | candidates (verdicts) | true places rejected |\n| --- | --- | --- | --- | --- | --- | --- | --- | --- | --- |\n",
+    );
+    for r in rows {
+        out.push_str(&format!(
+            "| {} | {} | {} | {} | {} ({:.1} %) | {:.3} | {:.3} | {:.3} | {} | {} |\n",
+            r.pass,
+            r.visit,
+            r.queries,
+            r.with_match,
+            r.false_alarms,
+            100.0 * r.false_alarm_rate,
+            r.recall_at_1,
+            r.recall_at_threshold,
+            r.candidate_precision,
+            r.candidates,
+            r.wrong_rejections
+        ));
+    }
+    out
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn visits_count_the_earlier_passes() {
+        assert_eq!(visit_of(None, 100), 1);
+        assert_eq!(visit_of(Some(&vec![]), 100), 1);
+        assert_eq!(visit_of(Some(&vec![3, 4, 5]), 100), 2);
+        // Two runs of true places 140 frames apart: the third visit.
+        assert_eq!(visit_of(Some(&vec![150, 5, 6, 151]), 100), 3);
+        // A gap of exactly half the frame gap stays one pass.
+        assert_eq!(visit_of(Some(&vec![0, 50]), 100), 2);
+    }
+}
