@@ -122,7 +122,7 @@ HuMemSettings::HuMemSettings()
     : enabled(true), robotId("orbslam3"), resetSessionOnStart(false), queryDeadlineMs(500),
       queryTimeoutMs(5000), imageCacheFrames(64), topN(0), relocTopN(10), threshold(-1.f), relocThreshold(0.f),
       minFrameGap(-1), relocMinFrameGap(0), relocMaxAgeFrames(30), minMapKeyFrames(12),
-      dbow2Fallback(false), poseUpdates(true), verbose(1)
+      dbow2Fallback(false), poseUpdates(true), reportVerdicts(true), verifyBelowScore(0.f), verbose(1)
 {
 }
 
@@ -159,6 +159,8 @@ bool HuMemSettings::Load(const std::string &strSettingsFile)
     ReadNumber(fs, "HuMem.MinMapKeyFrames", &minMapKeyFrames);
     ReadBool(fs, "HuMem.DBoW2Fallback", &dbow2Fallback);
     ReadBool(fs, "HuMem.PoseUpdates", &poseUpdates);
+    ReadBool(fs, "HuMem.ReportVerdicts", &reportVerdicts);
+    ReadNumber(fs, "HuMem.VerifyBelowScore", &verifyBelowScore);
     ReadNumber(fs, "HuMem.Verbose", &verbose);
     if(imageCacheFrames < 1)
         imageCacheFrames = 1;
@@ -215,7 +217,8 @@ VprKeyFrameDatabase::Counters::Counters()
     : framesCached(0), keyframesSeen(0), inserts(0), insertsNoImage(0), insertsRefused(0), erases(0),
       mapResets(0), sessionResets(0), poseUpdates(0), posesSent(0), loopQueries(0), loopAnswered(0),
       loopNotAnswered(0), loopCandidates(0), loopUsed(0), mergeUsed(0), relocQueries(0),
-      relocAnswersUsed(0), relocCandidates(0), writeFailures(0)
+      relocAnswersUsed(0), relocCandidates(0), writeFailures(0), verdictsReported(0), verdictsAccepted(0),
+      verdictsNotHuMem(0), verdictsSkipped(0), extraCoincidences(0)
 {
 }
 
@@ -223,13 +226,16 @@ VprKeyFrameDatabase::VprKeyFrameDatabase(const ORBVocabulary &voc, const HuMemSe
                                          std::unique_ptr<humem::VprClient> client)
     : KeyFrameDatabase(voc), mSettings(settings), mClient(std::move(client)),
       mImages(static_cast<size_t>(settings.imageCacheFrames)), mSessionId(settings.sessionId),
-      mSessionResets(0), mHaveReloc(false), mRelocFrameId(0), mRefusedInRow(0), mFailedQueriesInRow(0)
+      mSessionResets(0), mRelocProposalFrame(0), mHaveReloc(false), mRelocFrameId(0), mRefusedInRow(0),
+      mFailedQueriesInRow(0)
 {
     std::ostringstream m;
     m << "place recognition: HuMem at " << mSettings.address << ", robot '" << mSettings.robotId
       << "', session '" << mSessionId << "', loop deadline " << mSettings.queryDeadlineMs
       << " ms, image cache " << mSettings.imageCacheFrames << " frames, DBoW2 fallback "
-      << (mSettings.dbow2Fallback ? "on" : "off");
+      << (mSettings.dbow2Fallback ? "on" : "off") << ", verdicts " << (mSettings.reportVerdicts ? "reported" : "not reported");
+    if(mSettings.verifyBelowScore > 0.f)
+        m << ", a 4th coincidence below score " << mSettings.verifyBelowScore;
     Log(1, m.str());
     if(mSettings.resetSessionOnStart)
         mClient->ResetSession();
@@ -362,6 +368,7 @@ bool VprKeyFrameDatabase::InsertLocked(KeyFrame* pKF, Entry &entry)
     mRefusedInRow = 0;
     entry.inserted = true;
     entry.serverMapId = k.map_id;
+    mLastInsertedInMap[static_cast<unsigned long>(k.map_id)] = pKF->mnId;
     ++mCounters.inserts;
     return true;
 }
@@ -549,6 +556,9 @@ void VprKeyFrameDatabase::erase(KeyFrame* pKF)
         Log(2, "erase KF " + std::to_string(pKF->mnId));
     }
     mEntries.erase(it);
+    std::unordered_map<unsigned long, Proposal>::iterator p = mLoopProposals.find(pKF->mnId);
+    if(p != mLoopProposals.end() && p->second.kf == pKF)
+        mLoopProposals.erase(p);
 }
 
 void VprKeyFrameDatabase::clearMap(Map* pMap)
@@ -572,6 +582,15 @@ void VprKeyFrameDatabase::clearMap(Map* pMap)
         else
             ++it;
     }
+    for(std::unordered_map<unsigned long, Proposal>::iterator it = mLoopProposals.begin(); it != mLoopProposals.end();)
+    {
+        if(!mEntries.count(it->first) || !mEntries.count(it->second.queryId))
+            it = mLoopProposals.erase(it);
+        else
+            ++it;
+    }
+    mRelocProposals.clear();
+    mLastInsertedInMap.erase(mapId);
     mClient->ResetMap(mapId);
     if(!elsewhere.empty())
         mClient->Erase(elsewhere);
@@ -593,6 +612,9 @@ void VprKeyFrameDatabase::clear()
     mEntries.clear();
     mRecentKFs.clear();
     mRelocTickets.clear();
+    mLoopProposals.clear();
+    mRelocProposals.clear();
+    mLastInsertedInMap.clear();
     mHaveReloc = false;
     mImages.Clear();
     ++mCounters.sessionResets;
@@ -700,6 +722,7 @@ void VprKeyFrameDatabase::SortLoopCandidates(KeyFrame* pKF, Map* pMap, const hum
 {
     std::set<KeyFrame*> spConnected = pKF->GetConnectedKeyFrames();
     std::set<KeyFrame*> spAdded;
+    std::vector<Proposal> proposals;  // what goes on to geometric verification, for the verdicts
     const std::string session = mClient->session_id();
     std::ostringstream m;
     m << "loop query KF " << pKF->mnId << " (frame " << pKF->mnFrameId << ", map "
@@ -745,10 +768,17 @@ void VprKeyFrameDatabase::SortLoopCandidates(KeyFrame* pKF, Map* pMap, const hum
             m << "MERGE candidate (KF now in map " << pMapi->GetId() << ")";
         }
         spAdded.insert(pKFi);
+        Proposal p;
+        p.kf = pKFi;
+        p.queryId = pKF->mnId;
+        p.score = c.score;
+        proposals.push_back(p);
     }
     bool logCounters = false;
     {
         std::lock_guard<std::mutex> lock(mMutexHm);
+        for(size_t i = 0; i < proposals.size(); ++i)
+            mLoopProposals[proposals[i].kf->mnId] = proposals[i];
         mCounters.loopUsed += vpLoopCand.size();
         mCounters.mergeUsed += vpMergeCand.size();
         logCounters = mCounters.loopAnswered % 25 == 0;
@@ -769,7 +799,9 @@ void VprKeyFrameDatabase::LogCounters()
       << c.loopAnswered << ", not answered " << c.loopNotAnswered << ", candidates " << c.loopCandidates
       << ", used: loop " << c.loopUsed << " merge " << c.mergeUsed << "), reloc queries " << c.relocQueries
       << " (answers used " << c.relocAnswersUsed << ", candidates " << c.relocCandidates
-      << "), write failures " << c.writeFailures;
+      << "), verdicts reported " << c.verdictsReported << " (accepted " << c.verdictsAccepted
+      << ", not HuMem's " << c.verdictsNotHuMem << ", skipped " << c.verdictsSkipped << "), extra coincidences asked "
+      << c.extraCoincidences << ", write failures " << c.writeFailures;
     Log(1, m.str());
 }
 
@@ -798,6 +830,7 @@ std::vector<KeyFrame*> VprKeyFrameDatabase::DetectRelocalizationCandidates(Frame
 
     humem::QueryResult answer;
     unsigned long answerFrame = 0;
+    std::vector<Proposal> proposals;  // the candidates returned, for the verdicts
     {
         std::lock_guard<std::mutex> lock(mMutexHm);
         if(mHaveReloc && F->mnId >= mRelocFrameId &&
@@ -830,6 +863,10 @@ std::vector<KeyFrame*> VprKeyFrameDatabase::DetectRelocalizationCandidates(Frame
             if(pKFi->GetMap() != pMap) { m << "skipped: not in the current map"; continue; }
             if(std::find(out.begin(), out.end(), pKFi) != out.end()) { m << "skipped: duplicate"; continue; }
             out.push_back(pKFi);
+            Proposal p;
+            p.kf = pKFi;
+            p.score = c.score;
+            proposals.push_back(p);
             m << "candidate";
         }
         if(fresh)
@@ -840,9 +877,193 @@ std::vector<KeyFrame*> VprKeyFrameDatabase::DetectRelocalizationCandidates(Frame
         }
         Log(fresh ? 1 : 2, m.str());
     }
+    {
+        // Tracking::Relocalization reports its verdicts on these (RelocalisationResult) for this frame;
+        // DBoW2's fallback candidates are not HuMem's and get none.
+        std::lock_guard<std::mutex> lock(mMutexHm);
+        mRelocProposals.clear();
+        mRelocProposalFrame = F->mnId;
+        for(size_t i = 0; i < proposals.size(); ++i)
+            mRelocProposals[proposals[i].kf->mnId] = proposals[i];
+    }
     if(out.empty() && mSettings.dbow2Fallback)
         return KeyFrameDatabase::DetectRelocalizationCandidates(F, pMap);
     return out;
+}
+
+// ---------------------------------------------------------------------------
+// Verdicts: ORB-SLAM3's geometric check of the candidates HuMem proposed
+
+bool VprKeyFrameDatabase::StoredLocked(unsigned long id, KeyFrame* pKF) const
+{
+    std::unordered_map<unsigned long, Entry>::const_iterator it = mEntries.find(id);
+    return it != mEntries.end() && it->second.inserted && (!pKF || it->second.kf == pKF);
+}
+
+void VprKeyFrameDatabase::Report(unsigned long queryId, KeyFrame* pCandidate, humem::VerificationKind kind,
+                                 bool accepted, float score, int inliers,
+                                 const humem::Optional<humem::RelativeTransform> &relative, const char* note)
+{
+    humem::Verification v;
+    v.keyframe_id = static_cast<uint64_t>(queryId);
+    v.candidate_keyframe_id = static_cast<uint64_t>(pCandidate->mnId);  // the client's robot and session
+    v.kind = kind;
+    v.accepted = accepted;
+    if(accepted)
+        v.relative = relative;
+    v.score = score;
+    v.inliers = static_cast<uint32_t>(std::max(0, inliers));
+    // Queued behind the inserts of both keyframes: never blocks.
+    const humem::WriteResult w = mClient->ReportVerification(v);
+    const char* kindName = kind == humem::VerificationKind::kLoop ? "loop"
+                         : kind == humem::VerificationKind::kMerge ? "merge" : "relocalisation";
+    {
+        std::lock_guard<std::mutex> lock(mMutexHm);
+        if(w.state == humem::WriteState::kFailed)
+            ++mCounters.verdictsSkipped;
+        else
+        {
+            ++mCounters.verdictsReported;
+            if(accepted)
+                ++mCounters.verdictsAccepted;
+        }
+    }
+    std::ostringstream m;
+    m << "verdict " << kindName << " " << (accepted ? "ACCEPTED" : "rejected") << ": KF " << queryId << " ~ KF "
+      << pCandidate->mnId << " (score " << std::fixed << std::setprecision(3) << score << ", " << inliers
+      << " inliers" << (note ? note : "") << ")";
+    if(w.state == humem::WriteState::kFailed)
+        m << " not reported: " << w.status.ToString();
+    // Relocalisation rejections come by the dozen while tracking is lost: debug level.
+    Log(w.state == humem::WriteState::kFailed ? 0 : (accepted || kind != humem::VerificationKind::kRelocalisation) ? 1 : 2,
+        m.str());
+}
+
+void VprKeyFrameDatabase::VerificationResult(KeyFrame* pCurrentKF, KeyFrame* pCandidate, int nKind, bool bAccepted,
+                                             const Sophus::Sim3f* pScm, int nInliers)
+{
+    if(!mSettings.reportVerdicts || !pCurrentKF || !pCandidate)
+        return;
+    const humem::VerificationKind kind =
+        nKind == KeyFrameDatabase::VERIFY_MERGE ? humem::VerificationKind::kMerge : humem::VerificationKind::kLoop;
+    Proposal p;
+    bool queryIsCurrent = false;
+    {
+        std::lock_guard<std::mutex> lock(mMutexHm);
+        std::unordered_map<unsigned long, Proposal>::iterator it = mLoopProposals.find(pCandidate->mnId);
+        if(it == mLoopProposals.end() || it->second.kf != pCandidate)
+        {
+            ++mCounters.verdictsNotHuMem;  // not proposed by HuMem (DBoW2 fallback) or from before a reset
+            return;
+        }
+        p = it->second;
+        // The verdict ends this proposal: a later one starts a new verdict.
+        mLoopProposals.erase(it);
+        // The query is the keyframe HuMem proposed the candidate for; if it is gone (culled), the
+        // keyframe ORB-SLAM3 was processing stands in.
+        if(!StoredLocked(p.queryId, 0))
+            p.queryId = pCurrentKF->mnId;
+        queryIsCurrent = p.queryId == pCurrentKF->mnId;
+        if(!StoredLocked(p.queryId, 0) || !StoredLocked(pCandidate->mnId, pCandidate) || p.queryId == pCandidate->mnId)
+        {
+            ++mCounters.verdictsSkipped;
+            return;
+        }
+    }
+    if(!bAccepted)
+    {
+        // A candidate DetectCommonRegionsFromBoW skipped because it is covisible with the keyframe's
+        // neighbours is a near place, not a look-alike: no verdict.
+        const std::set<KeyFrame*> spConnected = pCurrentKF->GetConnectedKeyFrames();
+        std::vector<KeyFrame*> vpCov = pCandidate->GetBestCovisibilityKeyFrames(10);
+        vpCov.push_back(pCandidate);
+        for(size_t i = 0; i < vpCov.size(); ++i)
+            if(spConnected.count(vpCov[i]))
+            {
+                std::lock_guard<std::mutex> lock(mMutexHm);
+                ++mCounters.verdictsSkipped;
+                return;
+            }
+    }
+    humem::Optional<humem::RelativeTransform> relative;
+    if(bAccepted && pScm)
+    {
+        // T_qc: the candidate camera in the query camera's frame. pScm is candidate -> current
+        // camera; for a query that is not the current keyframe (a detection confirmed over several
+        // keyframes), compose with the query's pose relative to the current one (same map).
+        Eigen::Matrix4f S = pScm->matrix();
+        if(!queryIsCurrent)
+        {
+            KeyFrame* pQuery = 0;
+            {
+                std::lock_guard<std::mutex> lock(mMutexHm);
+                std::unordered_map<unsigned long, Entry>::iterator e = mEntries.find(p.queryId);
+                if(e != mEntries.end())
+                    pQuery = e->second.kf;
+            }
+            if(pQuery)
+                S = (pQuery->GetPose() * pCurrentKF->GetPoseInverse()).matrix() * S;
+        }
+        const float scale = std::cbrt(S.block<3, 3>(0, 0).determinant());
+        if(std::isfinite(scale) && scale > 0.f)
+        {
+            Eigen::Matrix4f T = Eigen::Matrix4f::Identity();
+            T.block<3, 3>(0, 0) = S.block<3, 3>(0, 0) / scale;
+            T.block<3, 1>(0, 3) = S.block<3, 1>(0, 3);
+            relative = humem::RelativeTransform(humem::Pose::FromMatrixColumnMajor(T.data()), scale);
+        }
+    }
+    Report(p.queryId, pCandidate, kind, bAccepted, p.score, nInliers, relative,
+           queryIsCurrent ? "" : ", confirmed over later keyframes");
+}
+
+void VprKeyFrameDatabase::RelocalisationResult(Frame* F, KeyFrame* pCandidate, bool bAccepted, int nInliers)
+{
+    if(!mSettings.reportVerdicts || !F || !pCandidate)
+        return;
+    Proposal p;
+    unsigned long queryId = 0;
+    {
+        std::lock_guard<std::mutex> lock(mMutexHm);
+        std::unordered_map<unsigned long, Proposal>::iterator it = mRelocProposals.find(pCandidate->mnId);
+        if(mRelocProposalFrame != F->mnId || it == mRelocProposals.end() || it->second.kf != pCandidate)
+        {
+            ++mCounters.verdictsNotHuMem;
+            return;
+        }
+        p = it->second;
+        mRelocProposals.erase(it);
+        // A lost frame is no keyframe, so HuMem holds no query for it: the verdict is reported
+        // against the newest keyframe inserted in the map the frame relocalises in.
+        Map* pMap = pCandidate->GetMap();
+        std::map<unsigned long, unsigned long>::iterator last =
+            pMap ? mLastInsertedInMap.find(pMap->GetId()) : mLastInsertedInMap.end();
+        if(last != mLastInsertedInMap.end())
+            queryId = last->second;
+        if(last == mLastInsertedInMap.end() || !StoredLocked(queryId, 0) || !StoredLocked(pCandidate->mnId, pCandidate) ||
+           queryId == pCandidate->mnId)
+        {
+            ++mCounters.verdictsSkipped;
+            return;
+        }
+    }
+    std::ostringstream note;
+    note << ", frame " << F->mnId << " standing in as KF " << queryId;
+    // No relative transform: it would be the frame's, not the stand-in keyframe's.
+    Report(queryId, pCandidate, humem::VerificationKind::kRelocalisation, bAccepted, p.score, nInliers,
+           humem::Optional<humem::RelativeTransform>(), note.str().c_str());
+}
+
+int VprKeyFrameDatabase::ExtraCoincidences(KeyFrame* /*pCurrentKF*/, KeyFrame* pCandidate, int /*nKind*/)
+{
+    if(mSettings.verifyBelowScore <= 0.f || !pCandidate)
+        return 0;
+    std::lock_guard<std::mutex> lock(mMutexHm);
+    std::unordered_map<unsigned long, Proposal>::iterator it = mLoopProposals.find(pCandidate->mnId);
+    if(it == mLoopProposals.end() || it->second.kf != pCandidate || it->second.score >= mSettings.verifyBelowScore)
+        return 0;
+    ++mCounters.extraCoincidences;
+    return 1;
 }
 
 } // namespace ORB_SLAM3

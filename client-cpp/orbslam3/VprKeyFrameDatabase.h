@@ -27,6 +27,13 @@
 //                MapCorrected (after a loop correction, a merge or a global
 //                BA): send the map id and pose of every keyframe of the map
 //                whose map id or pose differs from what HuMem was last sent.
+//                VerificationResult (after Sim3 and the coincidence check, a
+//                loop correction or a merge) and RelocalisationResult (after
+//                each relocalisation attempt): report ORB-SLAM3's verdict on
+//                each candidate HuMem proposed with ReportVerification
+//                (through the client's write queue: never blocks).
+//                ExtraCoincidences: one more coincidence for candidates
+//                scored below HuMem.VerifyBelowScore.
 //   any          erase (KeyFrame::SetBadFlag) -> Erase; clearMap (active map
 //                reset) -> ResetMap; clear (full reset: ids restart) ->
 //                ResetSession and a new session id.
@@ -81,6 +88,8 @@ struct HuMemSettings
     int minMapKeyFrames;          // HuMem.MinMapKeyFrames: no loop query below (12, as LoopClosing)
     bool dbow2Fallback;           // HuMem.DBoW2Fallback: DBoW2 when HuMem has no answer (0)
     bool poseUpdates;             // HuMem.PoseUpdates: UpdatePoses after loop/GBA/merge (1)
+    bool reportVerdicts;          // HuMem.ReportVerdicts: ReportVerification of ORB-SLAM3's verdicts (1)
+    float verifyBelowScore;       // HuMem.VerifyBelowScore: candidates scored below need a 4th coincidence (0: off)
     int verbose;                  // HuMem.Verbose: 0 warnings, 1 info (default), 2 debug
 
     HuMemSettings();
@@ -112,6 +121,10 @@ public:
     void NewKeyFrame(KeyFrame* pKF) override;
     void TrackingRecentlyLost(Frame* F, Map* pMap) override;
     void MapCorrected(Map* pMap) override;
+    void VerificationResult(KeyFrame* pCurrentKF, KeyFrame* pCandidate, int nKind, bool bAccepted,
+                            const Sophus::Sim3f* pScm, int nInliers) override;
+    void RelocalisationResult(Frame* F, KeyFrame* pCandidate, bool bAccepted, int nInliers) override;
+    int ExtraCoincidences(KeyFrame* pCurrentKF, KeyFrame* pCandidate, int nKind) override;
 
     // Counters since start (for logs and tests).
     struct Counters
@@ -119,7 +132,8 @@ public:
         uint64_t framesCached, keyframesSeen, inserts, insertsNoImage, insertsRefused, erases,
             mapResets, sessionResets, poseUpdates, posesSent, loopQueries, loopAnswered, loopNotAnswered,
             loopCandidates, loopUsed, mergeUsed, relocQueries, relocAnswersUsed, relocCandidates,
-            writeFailures;
+            writeFailures, verdictsReported, verdictsAccepted, verdictsNotHuMem, verdictsSkipped,
+            extraCoincidences;
         Counters();
     };
     Counters GetCounters();
@@ -144,6 +158,15 @@ private:
         }
     };
 
+    // A candidate HuMem proposed: for which keyframe (0 for relocalisation), its score, the proposal's kind.
+    struct Proposal
+    {
+        KeyFrame* kf;
+        unsigned long queryId;
+        float score;
+        Proposal() : kf(0), queryId(0), score(0.f) {}
+    };
+
     // Sends pKF (image from the cache); call with mMutex held. False if not sent.
     bool InsertLocked(KeyFrame* pKF, Entry &entry);
     void ApplyQueryOptions(humem::QueryRequest &q, bool reloc) const;
@@ -153,6 +176,12 @@ private:
     void SyncMap(Map* pMap, const char* why, int logLevel);
     void Log(int level, const std::string &message);
     std::string DescribeCandidate(const humem::Candidate &c) const;
+    // Whether keyframe id's insert was queued (HuMem holds it, or will once the queue gets there); mMutexHm held.
+    bool StoredLocked(unsigned long id, KeyFrame* pKF) const;
+    // Queues ReportVerification for (query, candidate); `relative`: T_qc, when accepted and known.
+    void Report(unsigned long queryId, KeyFrame* pCandidate, humem::VerificationKind kind, bool accepted,
+                float score, int inliers, const humem::Optional<humem::RelativeTransform> &relative,
+                const char* note);
 
     // The steps of DetectNBestCandidates (none holds mMutexHm while calling the client):
     // pKF's loop ticket from NewKeyFrame, else a query submitted now if pKF is stored (0: none).
@@ -176,6 +205,10 @@ private:
     std::unordered_map<unsigned long, Entry> mEntries;                 // keyframe id -> entry
     std::deque<std::pair<unsigned long, unsigned long> > mRecentKFs;   // (kf id, map id), newest first
     std::map<humem::Ticket, unsigned long> mRelocTickets;              // ticket -> frame id
+    std::unordered_map<unsigned long, Proposal> mLoopProposals;        // candidate kf id -> latest loop/merge proposal
+    std::unordered_map<unsigned long, Proposal> mRelocProposals;       // candidate kf id -> this attempt's proposal
+    unsigned long mRelocProposalFrame;                                 // the frame mRelocProposals are for
+    std::map<unsigned long, unsigned long> mLastInsertedInMap;         // map id -> newest keyframe id inserted
     bool mHaveReloc;
     humem::QueryResult mReloc;
     unsigned long mRelocFrameId;

@@ -106,6 +106,28 @@ void ToProto(const PoseUpdate& update, v1::PoseUpdate* out) {
   if (update.map_id.has_value()) out->set_map_id(update.map_id.value());
 }
 
+void ToProto(const Verification& verdict, const std::string& robot_id, const std::string& session_id,
+             v1::ReportVerificationRequest* out) {
+  out->set_robot_id(robot_id);
+  out->set_session_id(session_id);
+  out->set_keyframe_id(verdict.keyframe_id);
+  v1::KeyframeRef* candidate = out->mutable_candidate();
+  candidate->set_robot_id(verdict.candidate_robot_id.empty() ? robot_id : verdict.candidate_robot_id);
+  candidate->set_session_id(verdict.candidate_session_id.has_value() ? verdict.candidate_session_id.value()
+                                                                     : session_id);
+  candidate->set_keyframe_id(verdict.candidate_keyframe_id);
+  out->set_kind(static_cast<v1::VerificationKind>(verdict.kind));
+  out->set_outcome(verdict.accepted ? v1::VERIFICATION_OUTCOME_ACCEPTED : v1::VERIFICATION_OUTCOME_REJECTED);
+  // The server ignores the transform of a rejection: do not send one.
+  if (verdict.accepted && verdict.relative.has_value()) {
+    v1::RelativeTransform* relative = out->mutable_relative();
+    ToProto(verdict.relative.value().pose, relative->mutable_pose());
+    relative->set_scale(verdict.relative.value().scale);
+  }
+  if (verdict.score.has_value()) out->set_score(verdict.score.value());
+  out->set_inliers(verdict.inliers);
+}
+
 Candidate FromProto(const v1::Candidate& c) {
   Candidate out;
   out.robot_id = c.robot_id();
@@ -126,6 +148,10 @@ Candidate FromProto(const v1::Candidate& c) {
   ev.text_score = e.text_score();
   ev.text_distinctiveness = e.text_distinctiveness();
   ev.corroboration = e.corroboration();
+  ev.verdict_penalty = e.verdict_penalty();
+  ev.verdict_support = e.verdict_support();
+  ev.verdict_rejections = e.verdict_rejections();
+  ev.verdict_acceptances = e.verdict_acceptances();
   for (const v1::ObjectMatch& m : e.object_matches()) {
     ObjectMatch o;
     o.query_object = m.query_object();
@@ -182,6 +208,7 @@ void FromProto(const v1::StatsResponse& response, StoreStats* out) {
   out->disk_bytes = response.disk_bytes();
   out->format_version = response.format_version();
   out->server_version = response.server_version();
+  out->verdicts = response.verdicts();
 }
 
 }  // namespace humem::internal

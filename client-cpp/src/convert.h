@@ -27,6 +27,11 @@ void ToProto(const QueryRequest& request, const std::string& robot_id, const std
 
 void ToProto(const PoseUpdate& update, v1::PoseUpdate* out);
 
+// The verdict, reported by `robot_id`/`session_id` (the query keyframe's;
+// also the candidate's when the verdict leaves them empty/unset).
+void ToProto(const Verification& verdict, const std::string& robot_id, const std::string& session_id,
+             v1::ReportVerificationRequest* out);
+
 Candidate FromProto(const v1::Candidate& candidate);
 
 // Fills the answer part of *out and sets its state: kSupersededByServer if

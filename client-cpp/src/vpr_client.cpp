@@ -268,6 +268,24 @@ WriteResult VprClient::UpdatePoses(const std::vector<PoseUpdate>& updates, std::
   return impl_->Write(std::move(op), wait);
 }
 
+WriteResult VprClient::ReportVerification(const Verification& verdict, std::chrono::milliseconds wait) {
+  auto request = std::make_shared<v1::ReportVerificationRequest>();
+  internal::ToProto(verdict, impl_->options().robot_id, impl_->session(), request.get());
+  internal::WriteOp op;
+  op.kind = WriteKind::kReportVerification;
+  op.keyframe_id = verdict.keyframe_id;
+  op.send = [request](internal::Stub& stub, grpc::ClientContext& context, WriteResult& result) {
+    v1::ReportVerificationResponse response;
+    grpc::Status status = stub.ReportVerification(&context, *request, &response);
+    result.log_sequence = response.log_sequence();
+    result.replaced = response.replaced();
+    result.store_verdicts = response.store_verdicts();
+    result.affected = 1;
+    return status;
+  };
+  return impl_->Write(std::move(op), wait);
+}
+
 Status VprClient::Flush(std::chrono::milliseconds timeout) { return impl_->Flush(timeout); }
 
 WriteStats VprClient::GetWriteStats() const { return impl_->write_stats(); }

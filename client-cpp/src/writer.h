@@ -1,6 +1,6 @@
 // Job: the ordered write queue and its writer thread. Every write (insert,
-// erase, resets, pose updates) is delivered in the order it was queued, one
-// at a time, each attempt waiting for the connection (wait_for_ready) up to
+// erase, resets, pose updates, verdicts) is delivered in the order it was
+// queued, one at a time, each attempt waiting for the connection (wait_for_ready) up to
 // its deadline; transient errors are retried with back-off, so queued writes
 // survive a server restart; permanent errors fail that write only and are
 // reported. Inserts are bounded by the queue capacity; other writes always

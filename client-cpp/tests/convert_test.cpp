@@ -216,6 +216,7 @@ TEST(Convert, StatsPerMap) {
   m->set_map_id(1);
   m->set_keyframes(3);
   response.set_server_version("1.2.3");
+  response.set_verdicts(4);
   StoreStats stats;
   FromProto(response, &stats);
   EXPECT_EQ(stats.keyframes, 3u);
@@ -223,6 +224,73 @@ TEST(Convert, StatsPerMap) {
   EXPECT_EQ(stats.KeyframesIn("r", "s", 1), 3u);
   EXPECT_EQ(stats.KeyframesIn("r", "s", 2), 0u);
   EXPECT_EQ(stats.server_version, "1.2.3");
+  EXPECT_EQ(stats.verdicts, 4u);
+}
+
+TEST(Convert, AcceptedVerdictCarriesItsTransformScoreAndCandidate) {
+  Candidate c;
+  c.robot_id = "other-robot";
+  c.session_id = "";  // an empty session id is a session id, not "the client's"
+  c.keyframe_id = 0;  // id 0 is a keyframe id, sent as set
+  c.score = 0.42f;
+  Verification v = Verification::Of(7, c, VerificationKind::kMerge, true);
+  v.relative = RelativeTransform(Pose(Vec3(1, 2, 3), Quaternion(0, 0, 0, 1)), 0.5);
+  v.inliers = 31;
+  v1::ReportVerificationRequest p;
+  ToProto(v, "robot", "s1", &p);
+  EXPECT_EQ(p.robot_id(), "robot");
+  EXPECT_EQ(p.session_id(), "s1");
+  ASSERT_TRUE(p.has_keyframe_id());
+  EXPECT_EQ(p.keyframe_id(), 7u);
+  ASSERT_TRUE(p.has_candidate());
+  EXPECT_EQ(p.candidate().robot_id(), "other-robot");
+  EXPECT_EQ(p.candidate().session_id(), "");
+  ASSERT_TRUE(p.candidate().has_keyframe_id());
+  EXPECT_EQ(p.candidate().keyframe_id(), 0u);
+  EXPECT_EQ(p.kind(), v1::VERIFICATION_KIND_MERGE);
+  EXPECT_EQ(p.outcome(), v1::VERIFICATION_OUTCOME_ACCEPTED);
+  ASSERT_TRUE(p.has_relative());
+  EXPECT_DOUBLE_EQ(p.relative().scale(), 0.5);
+  EXPECT_DOUBLE_EQ(p.relative().pose().translation().y(), 2);
+  EXPECT_DOUBLE_EQ(p.relative().pose().rotation().z(), 1);
+  ASSERT_TRUE(p.has_score());
+  EXPECT_FLOAT_EQ(p.score(), 0.42f);
+  EXPECT_EQ(p.inliers(), 31u);
+}
+
+TEST(Convert, RejectedVerdictDefaultsToTheClientsIdsAndSendsNoTransform) {
+  Verification v;
+  v.keyframe_id = 12;
+  v.candidate_keyframe_id = 3;
+  v.kind = VerificationKind::kRelocalisation;
+  v.accepted = false;
+  v.relative = RelativeTransform();  // ignored for a rejection
+  v1::ReportVerificationRequest p;
+  ToProto(v, "robot", "s1", &p);
+  EXPECT_EQ(p.candidate().robot_id(), "robot");
+  EXPECT_EQ(p.candidate().session_id(), "s1");
+  EXPECT_EQ(p.candidate().keyframe_id(), 3u);
+  EXPECT_EQ(p.kind(), v1::VERIFICATION_KIND_RELOCALISATION);
+  EXPECT_EQ(p.outcome(), v1::VERIFICATION_OUTCOME_REJECTED);
+  EXPECT_FALSE(p.has_relative());
+  EXPECT_FALSE(p.has_score());
+  EXPECT_EQ(p.inliers(), 0u);
+  // The public enum values are the proto's.
+  EXPECT_EQ(static_cast<int>(VerificationKind::kLoop), v1::VERIFICATION_KIND_LOOP);
+}
+
+TEST(Convert, EvidenceCarriesTheVerdictTerms) {
+  v1::Candidate c;
+  v1::Evidence* e = c.mutable_evidence();
+  e->set_verdict_penalty(0.25f);
+  e->set_verdict_support(0.5f);
+  e->set_verdict_rejections(2);
+  e->set_verdict_acceptances(1);
+  const Candidate out = FromProto(c);
+  EXPECT_FLOAT_EQ(out.evidence.verdict_penalty, 0.25f);
+  EXPECT_FLOAT_EQ(out.evidence.verdict_support, 0.5f);
+  EXPECT_EQ(out.evidence.verdict_rejections, 2u);
+  EXPECT_EQ(out.evidence.verdict_acceptances, 1u);
 }
 
 }  // namespace

@@ -243,9 +243,17 @@ struct Evidence {
   float corroboration;
   std::vector<ObjectMatch> object_matches;
   std::vector<TextMatch> text_matches;
+  // What earlier verdicts (VprClient::ReportVerification) did to this
+  // candidate: P, the look-alike penalty, and V, the verified-place support,
+  // both in [0, 1], and how many rejections and acceptances applied.
+  float verdict_penalty;
+  float verdict_support;
+  uint32_t verdict_rejections;
+  uint32_t verdict_acceptances;
   Evidence()
       : scene_score(0), descriptor_cosine(0), temporal_depth(0), object_score(0), text_score(0),
-        text_distinctiveness(0), corroboration(0) {}
+        text_distinctiveness(0), corroboration(0), verdict_penalty(0), verdict_support(0),
+        verdict_rejections(0), verdict_acceptances(0) {}
 };
 
 // One proposed place, best first in a result.
@@ -329,6 +337,63 @@ struct PoseUpdate {
   PoseUpdate() : keyframe_id(0) {}
 };
 
+// Which geometric check the SLAM system ran on a candidate.
+enum class VerificationKind : int {
+  kLoop = 1,            // loop closure within one map (Sim3 / SE3 + covisibility check)
+  kMerge = 2,           // map merge between two maps
+  kRelocalisation = 3,  // relocalisation of a lost frame (PnP + pose optimisation)
+};
+
+// A similarity transform: rotation, translation and scale (1 for SE(3)).
+struct RelativeTransform {
+  Pose pose;
+  double scale;  // 0 means 1
+  RelativeTransform() : scale(1) {}
+  RelativeTransform(const Pose& p, double s) : pose(p), scale(s) {}
+};
+
+// The SLAM system's geometric verdict on a candidate HuMem proposed, for
+// VprClient::ReportVerification. The query keyframe is one of the client's
+// robot and session; both it and the candidate must be stored.
+struct Verification {
+  // The query keyframe (the keyframe or, for relocalisation, the keyframe
+  // standing in for the lost frame). Must be stored.
+  uint64_t keyframe_id;
+  // The candidate as HuMem returned it (Candidate::robot_id, session_id,
+  // keyframe_id). An empty robot id means the client's robot; an unset
+  // session id means the client's current session.
+  std::string candidate_robot_id;
+  Optional<std::string> candidate_session_id;
+  uint64_t candidate_keyframe_id;
+  VerificationKind kind;
+  // True: the SLAM system closed the loop, merged or relocalised with it.
+  bool accepted;
+  // When accepted: T_qc, the candidate camera in the query camera's frame
+  // (the scale of a monocular Sim3). Not sent when rejected.
+  Optional<RelativeTransform> relative;
+  // Candidate::score HuMem gave it, if known.
+  Optional<float> score;
+  // Inliers of the geometric check (0: unknown).
+  uint32_t inliers;
+
+  Verification()
+      : keyframe_id(0), candidate_keyframe_id(0), kind(VerificationKind::kLoop), accepted(false), inliers(0) {}
+
+  // A verdict on candidate `c` of the query keyframe `query_keyframe_id`
+  // (candidate ids and score copied from `c`).
+  static Verification Of(uint64_t query_keyframe_id, const Candidate& c, VerificationKind kind, bool accepted) {
+    Verification v;
+    v.keyframe_id = query_keyframe_id;
+    v.candidate_robot_id = c.robot_id;
+    v.candidate_session_id = c.session_id;
+    v.candidate_keyframe_id = c.keyframe_id;
+    v.kind = kind;
+    v.accepted = accepted;
+    v.score = c.score;
+    return v;
+  }
+};
+
 struct MapStats {
   std::string robot_id;
   std::string session_id;
@@ -344,7 +409,8 @@ struct StoreStats {
   uint64_t disk_bytes;
   uint32_t format_version;
   std::string server_version;
-  StoreStats() : keyframes(0), descriptor_dim(0), disk_bytes(0), format_version(0) {}
+  uint64_t verdicts;  // verification verdicts stored (ReportVerification)
+  StoreStats() : keyframes(0), descriptor_dim(0), disk_bytes(0), format_version(0), verdicts(0) {}
 
   // Keyframes stored for one robot/session/map (0 if none).
   uint64_t KeyframesIn(const std::string& robot, const std::string& session, uint64_t map) const {

@@ -1,8 +1,8 @@
 // Job: humem::VprClient, the SLAM system's connection to a HuMem server.
 //
-// Writes (Insert, Erase, ResetMap, ResetSession, UpdatePoses) go through one
-// ordered, bounded queue and a writer thread that delivers them one by one,
-// retrying with back-off while the server is unavailable, overloaded
+// Writes (Insert, Erase, ResetMap, ResetSession, UpdatePoses,
+// ReportVerification) go through one ordered, bounded queue and a writer
+// thread that delivers them one by one, retrying with back-off while the server is unavailable, overloaded
 // (RESOURCE_EXHAUSTED, honouring its `retry-after-ms` hint) or restarting.
 // Queries are latest-wins per kind: at most one in flight and one pending;
 // a newer submission replaces the pending one. gRPC is hidden behind a
@@ -24,7 +24,7 @@
 
 namespace humem {
 
-enum class WriteKind : int { kInsert = 1, kErase, kResetMap, kResetSession, kUpdatePoses };
+enum class WriteKind : int { kInsert = 1, kErase, kResetMap, kResetSession, kUpdatePoses, kReportVerification };
 
 enum class WriteState : int {
   kQueued = 1,   // accepted by the client, not yet acknowledged by the server
@@ -43,10 +43,13 @@ struct WriteResult {
   uint64_t sequence;  // position in the write order (0 if never queued)
   // Once applied: Insert: whether it replaced a stored keyframe and the
   // store's size; Erase/ResetMap/ResetSession: keyframes removed;
-  // UpdatePoses: keyframes updated and the ids the server does not hold.
+  // UpdatePoses: keyframes updated and the ids the server does not hold;
+  // ReportVerification: whether it replaced a stored verdict on the same
+  // query, candidate and kind, and the store's verdict count.
   bool replaced;
   uint64_t store_keyframes;
   uint64_t affected;
+  uint64_t store_verdicts;
   std::vector<uint64_t> missing_keyframe_ids;
   // A server in cluster mode: the write's position in its write log; the
   // client's later queries ask any replica to have applied it first
@@ -54,7 +57,8 @@ struct WriteResult {
   uint64_t log_sequence;
 
   WriteResult()
-      : state(WriteState::kQueued), sequence(0), replaced(false), store_keyframes(0), affected(0), log_sequence(0) {}
+      : state(WriteState::kQueued), sequence(0), replaced(false), store_keyframes(0), affected(0), store_verdicts(0),
+        log_sequence(0) {}
   bool applied() const { return state == WriteState::kApplied; }
 };
 
@@ -62,7 +66,7 @@ struct WriteResult {
 struct WriteFailure {
   uint64_t sequence;
   WriteKind kind;
-  uint64_t keyframe_id;  // Insert only
+  uint64_t keyframe_id;  // Insert: the keyframe; ReportVerification: the query keyframe
   Status status;
   WriteFailure() : sequence(0), kind(WriteKind::kInsert), keyframe_id(0) {}
 };
@@ -177,6 +181,16 @@ class HUMEM_API VprClient {
   WriteResult ResetSession(std::chrono::milliseconds wait = std::chrono::milliseconds(0));
   WriteResult UpdatePoses(const std::vector<PoseUpdate>& updates,
                           std::chrono::milliseconds wait = std::chrono::milliseconds(0));
+  // Reports the SLAM system's geometric verdict on a candidate HuMem
+  // proposed (the server stores it with the two keyframes and uses it in
+  // later answers: Evidence::verdict_penalty / verdict_support). Queued
+  // like the other writes, so it is sent after the inserts made before it:
+  // report right after inserting and the keyframes it names are stored
+  // first. The server refuses it with NOT_FOUND when the query keyframe or
+  // the candidate is not stored (reported like any refused write: the
+  // result's status with a `wait`, and on_write_failed).
+  WriteResult ReportVerification(const Verification& verdict,
+                                 std::chrono::milliseconds wait = std::chrono::milliseconds(0));
 
   // Waits until every write queued before the call is applied or refused.
   // OK, or DEADLINE_EXCEEDED if `timeout` passed first.

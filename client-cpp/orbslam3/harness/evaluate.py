@@ -7,14 +7,20 @@ patch's "[ORB-SLAM3 event]" lines) and, for HuMem runs, store.jsonl (`humem
 export`), and prints one Markdown table:
 
   keyframes, loop queries, candidates sent to geometric verification (true),
-  accepted loops and merges (true), relocalisations, maps at the end,
-  keyframe ATE (Sim3-aligned RMSE) and whether HuMem's store holds the map
-  ids and poses ORB-SLAM3 holds.
+  their precision per lap, ORB-SLAM3's verdicts on candidates (the patch's
+  "verdict" event lines: accepted, and how many the plugin reported to
+  HuMem), accepted loops and merges (true), relocalisations, maps at the
+  end, keyframe ATE (Sim3-aligned RMSE) and whether HuMem's store holds the
+  map ids and poses ORB-SLAM3 holds.
+
+Laps: the data sets carry no lap index, so the frames are split into
+--laps (3) equal parts by image index (town-dev/loop drives its loop three
+times); a candidate counts in the lap of its query keyframe's frame.
 
 "True" uses the data set's ground-truth poses of the two keyframes' source
 frames: <= 5 m apart and <= 30 degrees between the camera orientations.
 
-  evaluate.py --dataset town-dev/loop --runs-dir RUNS [--json out.json]
+  evaluate.py --dataset town-dev/loop --runs-dir RUNS [--laps 3] [--json out.json]
 """
 import argparse
 import json
@@ -128,6 +134,11 @@ CAND_RE = re.compile(r"^candidates " + KF_RE + r" loop (\d+) \[([^\]]*)\] merge 
 PAIR_RE = re.compile(r"^(loop|merge) " + KF_RE + r" matched " + KF_RE)
 RELOC_RE = re.compile(r"^relocalised frame (\d+) t ([-0-9.e+]+)")
 ATTEMPT_RE = re.compile(r"^relocalisation attempt frame (\d+) t ([-0-9.e+]+) candidates (\d+)")
+# ORB-SLAM3's verdict on one candidate (the patch: after Sim3 / the coincidence check, a loop
+# correction or merge, or a relocalisation attempt).
+VERDICT_RE = re.compile(r"^verdict (loop|merge) (accepted|rejected) " + KF_RE + r" candidate " + KF_RE)
+RELOC_VERDICT_RE = re.compile(r"^verdict relocalisation (accepted|rejected) frame (\d+) t ([-0-9.e+]+) candidate "
+                              + KF_RE)
 
 
 def store_check(store_path, kfs):
@@ -183,7 +194,7 @@ def store_check(store_path, kfs):
     return ok, text, detail
 
 
-def evaluate_run(rd, gt, frames):
+def evaluate_run(rd, gt, frames, laps=3):
     run = read_kv(os.path.join(rd, "run.txt"))
     counters = read_kv(os.path.join(rd, "counters.txt"))
     res = {"dir": os.path.basename(rd), "mode": run.get("mode", "?"), "run": run.get("run", "?"),
@@ -200,6 +211,8 @@ def evaluate_run(rd, gt, frames):
     res["maps"] = len(maps)
 
     queries = cands = cands_true = 0
+    lap_cands, lap_true = [0] * laps, [0] * laps
+    verdicts = {"loop": [0, 0], "merge": [0, 0], "relocalisation": [0, 0]}  # kind -> [all, accepted]
     accepted = {"loop": [], "merge": []}
     relocs = []
     attempts = attempt_cands = 0
@@ -210,10 +223,22 @@ def evaluate_run(rd, gt, frames):
             if m:
                 queries += 1
                 qi = frames.index(float(m.group(3)))
+                lap = min(laps - 1, qi * laps // max(1, len(gt)))
                 for grp in (5, 7):
                     for t in filter(None, m.group(grp).split(",")):
+                        ok = true_pair(gt, qi, frames.index(float(t)))[0]
                         cands += 1
-                        cands_true += true_pair(gt, qi, frames.index(float(t)))[0]
+                        cands_true += ok
+                        lap_cands[lap] += 1
+                        lap_true[lap] += ok
+                continue
+            m = VERDICT_RE.match(line) or RELOC_VERDICT_RE.match(line)
+            if m:
+                kind = m.group(1) if line.startswith("verdict loop") or line.startswith("verdict merge") \
+                    else "relocalisation"
+                outcome = m.group(2) if kind != "relocalisation" else m.group(1)
+                verdicts[kind][0] += 1
+                verdicts[kind][1] += outcome == "accepted"
                 continue
             m = PAIR_RE.match(line)
             if m:
@@ -230,7 +255,9 @@ def evaluate_run(rd, gt, frames):
             if m:
                 attempts += 1
                 attempt_cands += int(m.group(3))
-    res.update({"queries": queries, "candidates": cands, "candidates_true": cands_true, "loops": accepted["loop"],
+    res.update({"queries": queries, "candidates": cands, "candidates_true": cands_true,
+                "lap_candidates": lap_cands, "lap_candidates_true": lap_true, "verdicts": verdicts,
+                "loops": accepted["loop"],
                 "merges": accepted["merge"], "relocalisations": relocs,
                 "reloc_attempts": attempts, "reloc_attempt_candidates": attempt_cands,
                 "frames_lost": int(counters.get("frames_lost", "0"))})
@@ -238,6 +265,8 @@ def evaluate_run(rd, gt, frames):
         res["humem_answered"] = int(counters.get("humem_loop_answered", "0"))
         res["humem_queries"] = int(counters.get("humem_loop_queries", "0"))
         res["humem_pose_updates"] = int(counters.get("humem_pose_updates", "0"))
+        if "humem_verdicts_reported" in counters:
+            res["humem_verdicts_reported"] = int(counters["humem_verdicts_reported"])
 
     # Keyframe ATE (monocular: Sim3 alignment) of every map of at least 3
     # keyframes, each aligned on its own: reported for the largest map, and
@@ -271,27 +300,46 @@ def fmt_pairs(pairs):
     return "%d (%d)" % (len(pairs), sum(p["true"] for p in pairs))
 
 
+def fmt_laps(r):
+    """Candidate precision per lap: "true/all" of each lap, "—" for a lap without candidates."""
+    return ", ".join("%d/%d" % (t, n) if n else "—" for t, n in zip(r["lap_candidates_true"], r["lap_candidates"]))
+
+
+def fmt_verdicts(r):
+    """ORB-SLAM3's verdicts on candidates (loop + merge, relocalisation), accepted, and reported to HuMem."""
+    v = r["verdicts"]
+    lm = [v["loop"][0] + v["merge"][0], v["loop"][1] + v["merge"][1]]
+    text = "%d (%d) + reloc %d (%d)" % (lm[0], lm[1], v["relocalisation"][0], v["relocalisation"][1])
+    if "humem_verdicts_reported" in r:
+        text += " [%d]" % r["humem_verdicts_reported"]
+    return text
+
+
 def main():
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--dataset", required=True)
     ap.add_argument("--runs-dir", required=True)
+    ap.add_argument("--laps", type=int, default=3,
+                    help="passes over the route: frames split into this many equal parts by index (default 3)")
     ap.add_argument("--json", help="also write the results here (default RUNS/results.json)")
     a = ap.parse_args()
     gt = load_gt(a.dataset)
     frames = Frames(gt)
     dirs = sorted(d for d in os.listdir(a.runs_dir) if os.path.exists(os.path.join(a.runs_dir, d, "run.txt")))
     # humem-1, dbow2-1, ... -> group by mode, then run number
-    results = [evaluate_run(os.path.join(a.runs_dir, d), gt, frames) for d in dirs]
+    laps = max(1, a.laps)
+    results = [evaluate_run(os.path.join(a.runs_dir, d), gt, frames, laps) for d in dirs]
     results.sort(key=lambda r: (r["mode"] != "humem", int(r["run"]) if str(r["run"]).isdigit() else 0))
 
-    print("| run | keyframes | loop queries | candidates to geometric verification (true) | loops (true) "
+    print("| run | keyframes | loop queries | candidates to geometric verification (true) "
+          "| candidate precision per lap | verdicts (accepted) [reported to HuMem] | loops (true) "
           "| merges (true) | relocalisations (of attempts) | maps at end | KF ATE, Sim3 RMSE (largest map) "
           "| KF ATE (every map) | store = ORB-SLAM3 |")
-    print("| --- | --- | --- | --- | --- | --- | --- | --- | --- | --- | --- |")
+    print("| --- | --- | --- | --- | --- | --- | --- | --- | --- | --- | --- | --- | --- |")
     for r in results:
         name = "%s %s" % ("HuMem" if r["mode"] == "humem" else "DBoW2" if r["mode"] == "dbow2" else r["mode"], r["run"])
         if "error" in r:
-            print("| %s | %s |  |  |  |  |  |  |  |  |  |" % (name, r["error"]))
+            print("| %s | %s |  |  |  |  |  |  |  |  |  |  |  |" % (name, r["error"]))
             continue
         q = str(r["queries"])
         if "humem_answered" in r:
@@ -299,8 +347,9 @@ def main():
         ate = "%.2f m (%d KFs)" % (r["ate_m"], r["ate_map_keyframes"]) if "ate_m" in r else "—"
         ate_all = "%.2f m (%d KFs)" % (r["ate_all_m"], r["ate_all_keyframes"]) if "ate_all_m" in r else "—"
         reloc = "%d of %d" % (len(r["relocalisations"]), r["reloc_attempts"])
-        print("| %s | %d | %s | %d (%d) | %s | %s | %s | %d | %s | %s | %s |" % (
-            name, r["keyframes"], q, r["candidates"], r["candidates_true"], fmt_pairs(r["loops"]),
+        print("| %s | %d | %s | %d (%d) | %s | %s | %s | %s | %s | %d | %s | %s | %s |" % (
+            name, r["keyframes"], q, r["candidates"], r["candidates_true"], fmt_laps(r), fmt_verdicts(r),
+            fmt_pairs(r["loops"]),
             fmt_pairs(r["merges"]), reloc, r["maps"], ate, ate_all, r.get("store", "—")))
     print()
     print("Per mode, all runs: accepted loops and merges (false), candidates to geometric verification (true), "

@@ -302,6 +302,9 @@ int main(int argc, char** argv)
                  << c.loopCandidates << "\nhumem_loop_used " << c.loopUsed << "\nhumem_merge_used " << c.mergeUsed
                  << "\nhumem_reloc_queries " << c.relocQueries << "\nhumem_reloc_answers_used " << c.relocAnswersUsed
                  << "\nhumem_reloc_candidates " << c.relocCandidates << "\nhumem_write_failures " << c.writeFailures
+                 << "\nhumem_verdicts_reported " << c.verdictsReported << "\nhumem_verdicts_accepted " << c.verdictsAccepted
+                 << "\nhumem_verdicts_not_humem " << c.verdictsNotHuMem << "\nhumem_verdicts_skipped " << c.verdictsSkipped
+                 << "\nhumem_extra_coincidences " << c.extraCoincidences
                  << "\n";
     }
     else

@@ -38,8 +38,9 @@ usage: $0 --orbslam3 DIR --pangolin PREFIX --dataset DIR [options]
                       data set's sibling folders, never the evaluated one)
   --vocab-max-images N   at most N training images, evenly spaced (default 400)
   --vocab-k K --vocab-l L  branching factor and depth (default 10 and 5)
-  --server-env "K=V ..."   extra environment for humem serve (default: OCR detector input
-                      = the camera's size, rounded down to multiples of 32)
+  --server-env "K=V ..."   environment for humem serve (default: server-env.sh WIDTH HEIGHT
+                      of the camera: the OCR detector's long side = the camera's long side,
+                      rounded down to a multiple of 32)
   --realtime          feed strictly by the clock; by default a frame also waits until Local
                       Mapping has taken the queued keyframes (a loaded machine cannot keep up)
   --build-only        build (and train the vocabulary), run nothing
@@ -240,7 +241,8 @@ for k, v in (("KeyFrameSize", 0.05), ("KeyFrameLineWidth", 1.0), ("GraphLineWidt
     print('Viewer.%s: %.2f' % (k, v))
 EOF
 if [ -z "$server_env" ]; then
-    server_env="HUMEM_PERCEPTION__OCR__DETECTOR_WIDTH=$(( cw / 32 * 32 )) HUMEM_PERCEPTION__OCR__DETECTOR_HEIGHT=$(( ch / 32 * 32 ))"
+    # The server's environment for this camera (server-env.sh: also what a CI check feeds `humem serve`).
+    server_env=$("$here/server-env.sh" "$cw" "$ch" | tr '\n' ' ')
 fi
 timestamps=()
 [ -f "$dataset/sequence_poses.txt" ] && timestamps=(--timestamps "$dataset/sequence_poses.txt")

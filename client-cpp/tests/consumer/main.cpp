@@ -54,6 +54,14 @@ int main(int argc, char** argv) {
   keyframe.pose = pose;
   keyframe.features.descriptor.assign(8, 0.5f);
   CHECK(client->Insert(keyframe).state == humem::WriteState::kQueued);
+  // A verdict is a write too: it queues behind the insert.
+  humem::Verification verdict;
+  verdict.keyframe_id = 3;
+  verdict.candidate_keyframe_id = 1;
+  verdict.kind = humem::VerificationKind::kLoop;
+  verdict.accepted = true;
+  verdict.relative = humem::RelativeTransform(pose, 1.0);
+  CHECK(client->ReportVerification(verdict).state == humem::WriteState::kQueued);
   humem::QueryRequest query;
   query.frame_id = 1000;
   humem::Features features;
