@@ -100,7 +100,13 @@ fn keyframe(robot: &str, index: usize, features: &Features, pose: Pose) -> Seman
 /// The data set's poses of `folder`, or the 1 m-per-frame line.
 fn poses_or_line(dir: &std::path::Path, folder: &str, len: usize) -> anyhow::Result<Vec<Pose>> {
     match dataset::poses(dir, folder)? {
-        Some(poses) if poses.len() == len => Ok(poses),
+        Some(poses) if poses.len() == len => Ok(poses
+            .iter()
+            .map(|p| Pose {
+                translation: [p.t.x, p.t.y, p.t.z],
+                rotation: [p.r.w, p.r.i, p.r.j, p.r.k],
+            })
+            .collect()),
         Some(poses) => anyhow::bail!(
             "{}: {} poses for {len} images in {folder}/",
             dir.display(),
