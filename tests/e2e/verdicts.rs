@@ -116,7 +116,10 @@ async fn a_look_alike_rejected_twice_falls_below_the_true_place_until_accepted()
     }
     let (order, l) = ranking(&server, 302, 50).await;
     let rank = |id: u64| order.iter().position(|&k| k == id).unwrap();
-    assert_eq!(order[0], 10, "T must lead after two rejections of L: {order:?}");
+    assert_eq!(
+        order[0], 10,
+        "T must lead after two rejections of L: {order:?}"
+    );
     assert!(rank(10) < rank(50));
     assert_eq!(l.verdict_rejections, 2);
     // P = 0.6 (1 - e^-2) for two fresh rejections.
