@@ -109,6 +109,10 @@ pub struct EvalArgs {
     /// With --replay-verdicts: seed of the wrong rejections' draws.
     #[arg(long, default_value_t = 1)]
     pub replay_seed: u64,
+    /// With --replay-verdicts: a further pass with other verdict settings,
+    /// NAME:key=value,… (keys of [vpr.verdicts]); repeatable.
+    #[arg(long)]
+    pub replay_variant: Vec<super::verdict_replay::Variant>,
 }
 
 /// Source of the objects of each image.
@@ -404,6 +408,7 @@ impl LocalDatabase {
                 wrong_rejections: args.wrong_rejections,
                 seed: args.replay_seed,
             },
+            &args.replay_variant,
         )
     }
 

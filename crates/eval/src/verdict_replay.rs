@@ -39,7 +39,7 @@ use humem_core::index::Index;
 use humem_core::keyframe::{Features, KeyframeKey, Pose, SemanticKeyframe, SessionKey};
 use humem_core::synthetic::Rng;
 use humem_core::verdict::{Verdict, VerificationKind};
-use humem_core::vpr::{Layers, Scope, VprParams};
+use humem_core::vpr::{Layers, Scope, VerdictParams, VprParams};
 use humem_server::pipeline::query;
 use humem_server::pipeline::request::{QueryKind, QuerySpec};
 
@@ -50,6 +50,65 @@ pub struct ReplayOptions {
     pub wrong_rejections: f64,
     /// Seed of the draws of those rejections.
     pub seed: u64,
+}
+
+/// A further pass with other verdict settings (`--replay-variant
+/// NAME:key=value,…`, keys of `[vpr.verdicts]`), to compare settings on
+/// one's own data in one run.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Variant {
+    /// The pass's name in the table.
+    pub name: String,
+    /// `key = value` pairs applied over the configured settings.
+    pub settings: Vec<(String, String)>,
+}
+
+impl std::str::FromStr for Variant {
+    type Err = String;
+
+    fn from_str(s: &str) -> Result<Variant, String> {
+        let (name, rest) = s
+            .split_once(':')
+            .ok_or_else(|| format!("{s:?}: expected NAME:key=value,…"))?;
+        let settings = rest
+            .split(',')
+            .filter(|kv| !kv.trim().is_empty())
+            .map(|kv| {
+                kv.split_once('=')
+                    .map(|(k, v)| (k.trim().to_string(), v.trim().to_string()))
+                    .ok_or_else(|| format!("{kv:?}: expected key=value"))
+            })
+            .collect::<Result<_, _>>()?;
+        Ok(Variant {
+            name: name.trim().to_string(),
+            settings,
+        })
+    }
+}
+
+impl Variant {
+    /// `base` with this variant's settings, checked.
+    pub fn apply(&self, base: &VerdictParams) -> anyhow::Result<VerdictParams> {
+        let mut p = base.clone();
+        for (key, value) in &self.settings {
+            let bad = || anyhow::anyhow!("--replay-variant {}: {key} = {value:?} does not parse", self.name);
+            match key.as_str() {
+                "enabled" => p.enabled = value.parse().map_err(|_| bad())?,
+                "radius_m" => p.radius_m = value.parse().map_err(|_| bad())?,
+                "max_penalty" => p.max_penalty = value.parse().map_err(|_| bad())?,
+                "support_gain" => p.support_gain = value.parse().map_err(|_| bad())?,
+                "place_graph" => p.place_graph = value.parse().map_err(|_| bad())?,
+                "half_life_hours" => p.half_life_hours = value.parse().map_err(|_| bad())?,
+                other => anyhow::bail!(
+                    "--replay-variant {}: no verdict setting {other:?} (enabled, radius_m, max_penalty, support_gain, place_graph, half_life_hours)",
+                    self.name
+                ),
+            }
+        }
+        p.validate()
+            .map_err(|e| anyhow::anyhow!("--replay-variant {}: {e}", self.name))?;
+        Ok(p)
+    }
 }
 
 /// One row of the replay table.
@@ -145,6 +204,7 @@ pub fn replay(
     references: &[Features],
     queries: &[Features],
     options: ReplayOptions,
+    variants: &[Variant],
 ) -> anyhow::Result<Vec<ReplayRow>> {
     let point = OperatingPoint {
         threshold: params.threshold(),
@@ -161,9 +221,29 @@ pub fn replay(
         ),
     };
     let mut rows = Vec::new();
-    for with_verdicts in [false, true] {
+    let mut passes = vec![
+        (
+            "without verdicts".to_string(),
+            VerdictParams {
+                enabled: false,
+                ..params.verdicts.clone()
+            },
+        ),
+        (
+            "with verdicts".to_string(),
+            VerdictParams {
+                enabled: true,
+                ..params.verdicts.clone()
+            },
+        ),
+    ];
+    for v in variants {
+        passes.push((v.name.clone(), v.apply(&params.verdicts)?));
+    }
+    for (pass, verdict_params) in passes {
+        let with_verdicts = verdict_params.enabled;
         let mut params = params.clone();
-        params.verdicts.enabled = with_verdicts;
+        params.verdicts = verdict_params;
         let mut rng = Rng::new(options.seed);
         let dim = references.first().map_or(0, |f| f.descriptor.len());
         let mut index = Index::new(dim);
@@ -263,11 +343,7 @@ pub fn replay(
                 }
             }
         }
-        let pass = if with_verdicts {
-            "with verdicts"
-        } else {
-            "without verdicts"
-        };
+        let pass = pass.as_str();
         let mut all = Group::default();
         for (visit, group) in &groups {
             rows.push(group.row(pass, &visit.to_string(), point));
