@@ -16,10 +16,12 @@
 //! service's own query path, which applies them.
 //!
 //! Keyframe poses are the data set's poses where it has them (a map already
-//! corrected by its loop closures). Where it has none, each frame stands at
-//! 1 m per frame along a line: odometry that is locally right and never
-//! corrected, so a revisit is never near its first visit by pose — the
-//! pessimistic case for the verdicts' place tests.
+//! corrected by its loop closures). Where it has none, the frames stand
+//! along a line at the spacing the ground truth implies (a pass over a
+//! place is as many frames long as 2 × 5 m, the truth's radius, cover):
+//! odometry that is locally right and never corrected, so a revisit is
+//! never near its first visit by pose — the pessimistic case for the
+//! verdicts' place tests.
 //!
 //! Results are grouped by visit: 1 = the first time at a place (a loop
 //! query without an earlier true place, or a pairs query without a match),
@@ -91,7 +93,12 @@ impl Variant {
     pub fn apply(&self, base: &VerdictParams) -> anyhow::Result<VerdictParams> {
         let mut p = base.clone();
         for (key, value) in &self.settings {
-            let bad = || anyhow::anyhow!("--replay-variant {}: {key} = {value:?} does not parse", self.name);
+            let bad = || {
+                anyhow::anyhow!(
+                    "--replay-variant {}: {key} = {value:?} does not parse",
+                    self.name
+                )
+            };
             match key.as_str() {
                 "enabled" => p.enabled = value.parse().map_err(|_| bad())?,
                 "radius_m" => p.radius_m = value.parse().map_err(|_| bad())?,
@@ -156,8 +163,31 @@ fn keyframe(robot: &str, index: usize, features: &Features, pose: Pose) -> Seman
     }
 }
 
-/// The data set's poses of `folder`, or the 1 m-per-frame line.
-fn poses_or_line(dir: &std::path::Path, folder: &str, len: usize) -> anyhow::Result<Vec<Pose>> {
+/// Metres between frames on the stand-in line: the ground truth's
+/// diameter (2 × 5 m) over the median number of frames in one pass of a
+/// query's true places; 1 m without any.
+pub fn line_spacing(dataset: &Dataset) -> f64 {
+    let gap = dataset.min_frame_gap;
+    let mut per_pass: Vec<f64> = dataset
+        .matches
+        .values()
+        .filter(|m| !m.is_empty())
+        .map(|m| m.len() as f64 / (visit_of(Some(m), gap) - 1) as f64)
+        .collect();
+    if per_pass.is_empty() {
+        return 1.0;
+    }
+    per_pass.sort_by(f64::total_cmp);
+    (10.0 / per_pass[per_pass.len() / 2]).clamp(0.1, 10.0)
+}
+
+/// The data set's poses of `folder`, or the line at `spacing` metres.
+fn poses_or_line(
+    dir: &std::path::Path,
+    folder: &str,
+    len: usize,
+    spacing: f64,
+) -> anyhow::Result<Vec<Pose>> {
     match dataset::poses(dir, folder)? {
         Some(poses) if poses.len() == len => Ok(poses
             .iter()
@@ -173,7 +203,7 @@ fn poses_or_line(dir: &std::path::Path, folder: &str, len: usize) -> anyhow::Res
         ),
         None => Ok((0..len)
             .map(|i| Pose {
-                translation: [i as f64, 0.0, 0.0],
+                translation: [i as f64 * spacing, 0.0, 0.0],
                 ..Pose::default()
             })
             .collect()),
@@ -210,14 +240,15 @@ pub fn replay(
         threshold: params.threshold(),
         max_candidates: params.max_candidates,
     };
+    let spacing = line_spacing(dataset);
     let (reference_poses, query_poses) = match dataset.kind {
         Kind::Loop => {
-            let p = poses_or_line(dir, "sequence", references.len())?;
+            let p = poses_or_line(dir, "sequence", references.len(), spacing)?;
             (p.clone(), p)
         }
         Kind::Pairs => (
-            poses_or_line(dir, "reference", references.len())?,
-            poses_or_line(dir, "query", queries.len())?,
+            poses_or_line(dir, "reference", references.len(), spacing)?,
+            poses_or_line(dir, "query", queries.len(), spacing)?,
         ),
     };
     let mut rows = Vec::new();

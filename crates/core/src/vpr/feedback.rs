@@ -14,7 +14,10 @@
 //!
 //! - `A` = Σ w over the acceptances that apply, `t_A` the newest of them;
 //! - `R` = Σ w over the rejections that apply and were reported after
-//!   `t_A` (an acceptance overrides every earlier rejection of the pair);
+//!   `t_A` (an acceptance overrides every earlier rejection of the pair),
+//!   less `A`, and not below 0: a pair of places geometry verified at least
+//!   as often as it rejected them since is a true pair whose rejections
+//!   were geometry's misses (appearance change), not a look-alike;
 //! - the look-alike penalty `P = ρ (1 − e^{−R})`, bounded by
 //!   `ρ = max_penalty < 1`: geometry also rejects true places under strong
 //!   appearance change, so no count of rejections is a veto;
@@ -25,7 +28,12 @@
 //!   score; a true place seen on two earlier visits that were verified to
 //!   match is corroborated by both;
 //! - the score becomes `Λ' = Λ (1 − P)` and then
-//!   `Λ'' = Λ' + (1 − Λ') g_v V`, in [0, 1] like every score.
+//!   `Λ'' = Λ' + (1 − Λ') g_v V Λ'`, in [0, 1] like every score. The support
+//!   grows with the candidate's own score: it restores true places that
+//!   geometry's misses penalised and orders verified places first, but a
+//!   candidate the appearance does not already back is not lifted over the
+//!   threshold by its neighbours' verdicts alone (measured: an additive
+//!   support sent more false candidates than it recovered true ones).
 //!
 //! A query with no stored pose (a relocalisation from an image) has no
 //! place: only the place graph applies to it. The verdicts looked at are
@@ -182,7 +190,7 @@ pub struct VerdictEffect {
     pub acceptances: u32,
 }
 
-/// `(R, A, rejections counted, acceptances)` of the verdicts linking
+/// `(R, A, rejections counted, acceptances)`, R net of A, of the verdicts linking
 /// places `x` and `y`.
 fn pair_evidence(
     x: &Place,
@@ -206,7 +214,7 @@ fn pair_evidence(
             nr += 1;
         }
     }
-    (r, a, nr, na)
+    ((r - a).max(0.0), a, nr, na)
 }
 
 /// Applies the verdicts to the scores of one query's candidates (in the
@@ -253,7 +261,8 @@ pub fn apply(
         }
         effects[i].support = support as f32;
         let base = f64::from(penalised[i]);
-        scores[i] = (base + (1.0 - base) * f64::from(params.support_gain) * support) as f32;
+        let gain = f64::from(params.support_gain);
+        scores[i] = (base + (1.0 - base) * gain * support * base) as f32;
     }
     effects
 }
@@ -345,7 +354,8 @@ mod tests {
     }
 
     /// An acceptance after the rejections lifts the penalty and supports
-    /// the pair: V = 1 - e^-1 = 0.632121; 0.5 + 0.5 * 0.5 * 0.632121 = 0.658030.
+    /// the pair: V = 1 - e^-1 = 0.632121;
+    /// 0.5 + 0.5 * 0.5 * 0.632121 * 0.5 = 0.579015.
     #[test]
     fn a_later_acceptance_overrides_by_hand() {
         let keys: Vec<KeyframeKey> = (0..10).map(key).collect();
@@ -367,16 +377,23 @@ mod tests {
         assert_eq!(effects[0].penalty, 0.0);
         assert_eq!((effects[0].rejections, effects[0].acceptances), (0, 1));
         assert!(close(effects[0].support, 0.632_121));
-        assert!(close(scores[0], 0.658_030));
-        // A rejection after that acceptance counts again: R = 1,
-        // P = 0.6 * 0.632121 = 0.379272, Λ' = 0.5 * 0.620728 = 0.310364,
-        // Λ'' = 0.310364 + 0.689636 * 0.5 * 0.632121 = 0.528330.
+        assert!(close(scores[0], 0.579_015));
+        // Two rejections after that acceptance count again, less the
+        // acceptance: R = 2 - 1 = 1, P = 0.6 * 0.632121 = 0.379272,
+        // Λ' = 0.5 * 0.620728 = 0.310364,
+        // Λ'' = 0.310364 + 0.689636 * 0.5 * 0.632121 * 0.310364 = 0.378013.
         let mut later = verdicts.to_vec();
         later.push(placed(
             place(&keys[9], 0.5),
             place(&keys[4], 101.0),
             false,
             4.0,
+        ));
+        later.push(placed(
+            place(&keys[2], 1.2),
+            place(&keys[6], 99.0),
+            false,
+            5.0,
         ));
         let mut scores = [0.5];
         let effects = apply(
@@ -387,14 +404,25 @@ mod tests {
             &later,
         );
         assert!(close(effects[0].penalty, 0.379_272));
-        assert!(close(scores[0], 0.528_330));
+        assert_eq!(effects[0].rejections, 2);
+        assert!(close(scores[0], 0.378_013));
+        // One rejection after it is outweighed by the acceptance: no penalty.
+        let mut scores = [0.5];
+        let effects = apply(
+            &VerdictParams::default(),
+            Some(&q),
+            &[l],
+            &mut scores,
+            &later[..4],
+        );
+        assert_eq!(effects[0].penalty, 0.0);
     }
 
     /// Two candidates at places linked by an acceptance corroborate each
     /// other, by the other's score: V_0 = (1 - e^-1) * 0.4 = 0.252848,
-    /// Λ''_0 = 0.3 + 0.7 * 0.5 * 0.252848 = 0.388497; V_1 = 0.632121 * 0.3
-    /// = 0.189636, Λ''_1 = 0.4 + 0.6 * 0.5 * 0.189636 = 0.456891. A third
-    /// candidate linked to neither is untouched.
+    /// Λ''_0 = 0.3 + 0.7 * 0.5 * 0.252848 * 0.3 = 0.326549; V_1 = 0.632121
+    /// * 0.3 = 0.189636, Λ''_1 = 0.4 + 0.6 * 0.5 * 0.189636 * 0.4 = 0.422756.
+    /// A third candidate linked to neither is untouched.
     #[test]
     fn place_graph_by_hand() {
         let keys: Vec<KeyframeKey> = (0..10).map(key).collect();
@@ -416,9 +444,9 @@ mod tests {
             &verdicts,
         );
         assert!(close(effects[0].support, 0.252_848));
-        assert!(close(scores[0], 0.388_497));
+        assert!(close(scores[0], 0.326_549));
         assert!(close(effects[1].support, 0.189_636));
-        assert!(close(scores[1], 0.456_891));
+        assert!(close(scores[1], 0.422_756));
         assert!(close(scores[2], 0.35));
         // Off: nothing changes.
         let params = VerdictParams {
