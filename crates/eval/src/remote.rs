@@ -27,8 +27,10 @@ use humem_server::client::Connection;
 
 use super::dataset::Dataset;
 use super::degrade::Degradation;
+use super::precision::OperatingPoint;
 use super::run::{image_bytes, progress, Samples, Selection};
 use super::truth::Kind;
+use super::verdict_replay::{self, ReplayOptions, ReplayRow};
 use humem_core::vpr::Layers;
 use humem_server::proto;
 use humem_server::proto::place_recognition_client::PlaceRecognitionClient;
@@ -284,5 +286,179 @@ impl Remote {
                 .erased;
         }
         Ok(erased)
+    }
+
+    /// `--replay-verdicts` through the service: the data set streamed once
+    /// without reporting verdicts and once reporting them with
+    /// `ReportVerification`, each pass under robots of its own (removed at
+    /// the end with the rest of the run).
+    pub async fn replay_verdicts(
+        &mut self,
+        params: &humem_core::vpr::VprParams,
+        dir: &std::path::Path,
+        dataset: &Dataset,
+        options: ReplayOptions,
+    ) -> anyhow::Result<Vec<ReplayRow>> {
+        let point = OperatingPoint {
+            threshold: params.threshold(),
+            max_candidates: params.max_candidates,
+        };
+        let poses = verdict_replay::replay_poses(dir, dataset)?;
+        let mut rows = Vec::new();
+        for (n, (pass, report)) in [("without verdicts", false), ("with verdicts", true)]
+            .into_iter()
+            .enumerate()
+        {
+            let prefix = format!("{}-replay{n}", self.query_robot);
+            for robot in [verdict_replay::ROBOT, verdict_replay::REFERENCE_ROBOT] {
+                self.sessions
+                    .push((format!("{prefix}-{robot}"), self.session.clone()));
+            }
+            let mut stream = RemoteStream {
+                remote: self,
+                prefix,
+                dataset,
+            };
+            rows.extend(
+                verdict_replay::replay_pass(
+                    &mut stream,
+                    pass,
+                    dataset,
+                    &poses,
+                    point,
+                    options,
+                    report,
+                )
+                .await?,
+            );
+        }
+        Ok(rows)
+    }
+}
+
+/// A replay pass through the service: robots named `prefix-drive` and
+/// `prefix-reference`, frames inserted with their images and poses.
+struct RemoteStream<'a> {
+    remote: &'a mut Remote,
+    prefix: String,
+    dataset: &'a Dataset,
+}
+
+impl RemoteStream<'_> {
+    fn robot(&self, robot: &str) -> String {
+        format!("{}-{robot}", self.prefix)
+    }
+}
+
+impl verdict_replay::ReplayStream for RemoteStream<'_> {
+    async fn store(
+        &mut self,
+        robot: &str,
+        index: usize,
+        pose: humem_core::keyframe::Pose,
+    ) -> anyhow::Result<()> {
+        let path = if robot == verdict_replay::REFERENCE_ROBOT {
+            &self.dataset.references[index]
+        } else {
+            &self.dataset.queries[index]
+        };
+        let mut kf = keyframe(
+            &self.robot(robot),
+            &self.remote.session,
+            index,
+            image_bytes(path, None)?,
+        );
+        kf.pose = Some(proto::Pose {
+            translation: Some(proto::Vec3 {
+                x: pose.translation[0],
+                y: pose.translation[1],
+                z: pose.translation[2],
+            }),
+            rotation: Some(proto::Quaternion {
+                w: pose.rotation[0],
+                x: pose.rotation[1],
+                y: pose.rotation[2],
+                z: pose.rotation[3],
+            }),
+        });
+        self.remote.insert(kf).await?;
+        Ok(())
+    }
+
+    async fn ask(&mut self, q: usize, pairs: bool, gap: usize) -> anyhow::Result<Vec<(u64, f32)>> {
+        let (scope, robot_ids) = if pairs {
+            (
+                proto::Scope::Listed,
+                vec![self.robot(verdict_replay::REFERENCE_ROBOT)],
+            )
+        } else {
+            (proto::Scope::SameMap, Vec::new())
+        };
+        let robot = self.robot(verdict_replay::ROBOT);
+        let reply = self
+            .remote
+            .client
+            .query(proto::QueryRequest {
+                robot_id: robot.clone(),
+                session_id: self.remote.session.clone(),
+                keyframe_id: Some(q as u64),
+                scope: scope as i32,
+                robot_ids,
+                min_frame_gap: Some(gap as u64),
+                top_n: Some(self.remote.top_n),
+                threshold: Some(0.0),
+                layers: proto::Layers::Full as i32,
+                ..Default::default()
+            })
+            .await
+            .map_err(|s| anyhow::anyhow!("{:?}: {}", s.code(), s.message()))
+            .with_context(|| format!("querying keyframe {q} of {robot}"))?
+            .into_inner();
+        if reply.status() != proto::QueryStatus::Answered {
+            bail!(
+                "query of keyframe {q} was not answered: {:?}",
+                reply.status()
+            );
+        }
+        Ok(reply
+            .candidates
+            .iter()
+            .map(|c| (c.keyframe_id, c.score))
+            .collect())
+    }
+
+    async fn report(
+        &mut self,
+        q: usize,
+        robot: &str,
+        candidate: u64,
+        accepted: bool,
+        score: f32,
+    ) -> anyhow::Result<()> {
+        let session = self.remote.session.clone();
+        self.remote
+            .client
+            .report_verification(proto::ReportVerificationRequest {
+                robot_id: self.robot(verdict_replay::ROBOT),
+                session_id: session.clone(),
+                keyframe_id: Some(q as u64),
+                candidate: Some(proto::KeyframeRef {
+                    robot_id: self.robot(robot),
+                    session_id: session,
+                    keyframe_id: Some(candidate),
+                }),
+                kind: proto::VerificationKind::Loop as i32,
+                outcome: if accepted {
+                    proto::VerificationOutcome::Accepted
+                } else {
+                    proto::VerificationOutcome::Rejected
+                } as i32,
+                score: Some(score),
+                ..Default::default()
+            })
+            .await
+            .map_err(|s| anyhow::anyhow!("{:?}: {}", s.code(), s.message()))
+            .with_context(|| format!("reporting the verdict on {candidate} for query {q}"))?;
+        Ok(())
     }
 }

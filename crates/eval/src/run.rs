@@ -378,9 +378,6 @@ impl LocalDatabase {
         args: &EvalArgs,
         dataset: &Dataset,
     ) -> anyhow::Result<Vec<super::verdict_replay::ReplayRow>> {
-        if !(0.0..=1.0).contains(&args.wrong_rejections) {
-            anyhow::bail!("--wrong-rejections must be in [0, 1]");
-        }
         let fresh;
         let queries: &[Perceived] = match dataset.kind {
             Kind::Loop => &self.references,
@@ -410,6 +407,7 @@ impl LocalDatabase {
             },
             &args.replay_variant,
         )
+        .await
     }
 
     async fn build(
@@ -678,13 +676,33 @@ pub async fn run(config: Config, args: EvalArgs) -> anyhow::Result<()> {
             .push(ConditionResult { condition, results });
     }
     if args.replay_verdicts {
-        let Backend::Local(local) = &backend else {
-            anyhow::bail!("--replay-verdicts runs in-process only, not with --server");
+        if !(0.0..=1.0).contains(&args.wrong_rejections) {
+            anyhow::bail!("--wrong-rejections must be in [0, 1]");
+        }
+        let rows = match &mut backend {
+            Backend::Local(local) => {
+                let (perception, database) = &**local;
+                database
+                    .replay_verdicts(&config, perception, &args, &dataset)
+                    .await?
+            }
+            Backend::Remote(remote) => {
+                if !args.replay_variant.is_empty() {
+                    anyhow::bail!("--replay-variant runs in-process only: a running service has one configuration");
+                }
+                remote
+                    .replay_verdicts(
+                        &config.vpr,
+                        &args.dataset,
+                        &dataset,
+                        super::verdict_replay::ReplayOptions {
+                            wrong_rejections: args.wrong_rejections,
+                            seed: args.replay_seed,
+                        },
+                    )
+                    .await?
+            }
         };
-        let (perception, database) = &**local;
-        let rows = database
-            .replay_verdicts(&config, perception, &args, &dataset)
-            .await?;
         report.verdict_replay = Some(rows);
     }
     if let Backend::Remote(remote) = &mut backend {

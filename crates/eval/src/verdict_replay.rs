@@ -221,13 +221,137 @@ pub fn visit_of(matches: Option<&Vec<usize>>, gap: usize) -> usize {
     1 + 1 + sorted.windows(2).filter(|w| w[1] - w[0] > split).count()
 }
 
-const ROBOT: &str = "drive";
-const REFERENCE_ROBOT: &str = "reference";
+/// Robot of the drive (a loop's frames, a pairs set's queries).
+pub(crate) const ROBOT: &str = "drive";
+/// Robot of a pairs set's references.
+pub(crate) const REFERENCE_ROBOT: &str = "reference";
 
-/// Streams the data set twice (without, then with verdicts) and returns
-/// the table's rows. `references` and `queries` are the perceived features
-/// (for a loop, the same frames).
-pub fn replay(
+/// Where a pass stores frames, asks and reports: the in-process index
+/// ([`LocalStream`]) or a running service (`remote`). A pass starts on an
+/// empty stream.
+pub(crate) trait ReplayStream {
+    /// Stores frame `index` of `robot` ([`ROBOT`] or [`REFERENCE_ROBOT`]),
+    /// in map 0 of its one session, at `pose`.
+    async fn store(&mut self, robot: &str, index: usize, pose: Pose) -> anyhow::Result<()>;
+    /// Asks about stored frame `q` of the drive, with no threshold: the
+    /// ranked `(keyframe id, score)` of the candidate robot's keyframes.
+    async fn ask(&mut self, q: usize, pairs: bool, gap: usize) -> anyhow::Result<Vec<(u64, f32)>>;
+    /// Reports the verdict on candidate `candidate` of `robot` for query
+    /// frame `q`.
+    async fn report(
+        &mut self,
+        q: usize,
+        robot: &str,
+        candidate: u64,
+        accepted: bool,
+        score: f32,
+    ) -> anyhow::Result<()>;
+}
+
+/// The in-process stream: the service's own index and query path.
+pub(crate) struct LocalStream<'a> {
+    index: Index,
+    params: VprParams,
+    references: &'a [Features],
+    queries: &'a [Features],
+}
+
+impl ReplayStream for LocalStream<'_> {
+    async fn store(&mut self, robot: &str, index: usize, pose: Pose) -> anyhow::Result<()> {
+        let features = if robot == REFERENCE_ROBOT {
+            &self.references[index]
+        } else {
+            &self.queries[index]
+        };
+        self.index.upsert(keyframe(robot, index, features, pose));
+        Ok(())
+    }
+
+    async fn ask(&mut self, q: usize, pairs: bool, gap: usize) -> anyhow::Result<Vec<(u64, f32)>> {
+        let spec = QuerySpec {
+            session: SessionKey {
+                robot_id: ROBOT.into(),
+                session_id: String::new(),
+            },
+            map_id: None,
+            frame_id: None,
+            keyframe_id: Some(q as u64),
+            observation: None,
+            predecessor_ids: Vec::new(),
+            scope: if pairs {
+                Scope::Listed {
+                    robot_ids: vec![REFERENCE_ROBOT.into()],
+                    maps: Vec::new(),
+                }
+            } else {
+                Scope::SameMap
+            },
+            readable_robots: None,
+            min_frame_gap: gap as u64,
+            top_n: self.params.top_k,
+            threshold: 0.0,
+            layers: Layers::FULL,
+            kind: QueryKind::LoopClosure,
+        };
+        let outcome = query::run(&self.index, &self.params, &spec)
+            .with_context(|| format!("ranking query {q}"))?;
+        Ok(outcome
+            .candidates
+            .iter()
+            .map(|c| (c.key.keyframe_id, c.score))
+            .collect())
+    }
+
+    async fn report(
+        &mut self,
+        q: usize,
+        robot: &str,
+        candidate: u64,
+        accepted: bool,
+        score: f32,
+    ) -> anyhow::Result<()> {
+        let session = |robot: &str| SessionKey {
+            robot_id: robot.into(),
+            session_id: String::new(),
+        };
+        self.index.record_verdict(Verdict {
+            query: session(ROBOT).keyframe(q as u64),
+            candidate: session(robot).keyframe(candidate),
+            kind: VerificationKind::Loop,
+            accepted,
+            relative: None,
+            score: Some(score),
+            inliers: 0,
+            reported_at: now(),
+        });
+        Ok(())
+    }
+}
+
+/// The keyframe poses of a data set: `(references, queries)` (for a loop,
+/// the same), the data set's own or the stand-in line.
+pub fn replay_poses(
+    dir: &std::path::Path,
+    dataset: &Dataset,
+) -> anyhow::Result<(Vec<Pose>, Vec<Pose>)> {
+    let spacing = line_spacing(dataset);
+    Ok(match dataset.kind {
+        Kind::Loop => {
+            let p = poses_or_line(dir, "sequence", dataset.references.len(), spacing)?;
+            (p.clone(), p)
+        }
+        Kind::Pairs => (
+            poses_or_line(dir, "reference", dataset.references.len(), spacing)?,
+            poses_or_line(dir, "query", dataset.queries.len(), spacing)?,
+        ),
+    })
+}
+
+/// Streams the data set in-process once without verdicts, once with the
+/// configured verdict settings and once per variant, and returns the
+/// table's rows. `references` and `queries` are the perceived features (for
+/// a loop, the same frames).
+pub async fn replay(
     params: &VprParams,
     dir: &std::path::Path,
     dataset: &Dataset,
@@ -240,18 +364,7 @@ pub fn replay(
         threshold: params.threshold(),
         max_candidates: params.max_candidates,
     };
-    let spacing = line_spacing(dataset);
-    let (reference_poses, query_poses) = match dataset.kind {
-        Kind::Loop => {
-            let p = poses_or_line(dir, "sequence", references.len(), spacing)?;
-            (p.clone(), p)
-        }
-        Kind::Pairs => (
-            poses_or_line(dir, "reference", references.len(), spacing)?,
-            poses_or_line(dir, "query", queries.len(), spacing)?,
-        ),
-    };
-    let mut rows = Vec::new();
+    let poses = replay_poses(dir, dataset)?;
     let mut passes = vec![
         (
             "without verdicts".to_string(),
@@ -271,119 +384,97 @@ pub fn replay(
     for v in variants {
         passes.push((v.name.clone(), v.apply(&params.verdicts)?));
     }
+    let mut rows = Vec::new();
     for (pass, verdict_params) in passes {
-        let with_verdicts = verdict_params.enabled;
+        let report = verdict_params.enabled;
         let mut params = params.clone();
         params.verdicts = verdict_params;
-        let mut rng = Rng::new(options.seed);
         let dim = references.first().map_or(0, |f| f.descriptor.len());
-        let mut index = Index::new(dim);
-        let (query_robot, scope, gap) = match dataset.kind {
-            Kind::Loop => (ROBOT, Scope::SameMap, dataset.min_frame_gap),
-            Kind::Pairs => {
-                for (i, f) in references.iter().enumerate() {
-                    index.upsert(keyframe(REFERENCE_ROBOT, i, f, reference_poses[i]));
-                }
-                (
-                    ROBOT,
-                    Scope::Listed {
-                        robot_ids: vec![REFERENCE_ROBOT.into()],
-                        maps: Vec::new(),
-                    },
-                    0,
-                )
-            }
+        let mut stream = LocalStream {
+            index: Index::new(dim),
+            params,
+            references,
+            queries,
         };
-        // Per visit: the scored queries, their rankings and wrong rejections.
-        let mut groups: BTreeMap<usize, Group> = BTreeMap::new();
-        for q in 0..queries.len() {
-            index.upsert(keyframe(query_robot, q, &queries[q], query_poses[q]));
-            if dataset.kind == Kind::Loop && q < gap {
-                continue; // nothing is eligible yet
-            }
-            let spec = QuerySpec {
-                session: SessionKey {
-                    robot_id: query_robot.into(),
-                    session_id: String::new(),
-                },
-                map_id: None,
-                frame_id: None,
-                keyframe_id: Some(q as u64),
-                observation: None,
-                predecessor_ids: Vec::new(),
-                scope: scope.clone(),
-                readable_robots: None,
-                min_frame_gap: gap as u64,
-                top_n: params.top_k,
-                threshold: 0.0,
-                layers: Layers::FULL,
-                kind: QueryKind::LoopClosure,
-            };
-            let outcome =
-                query::run(&index, &params, &spec).with_context(|| format!("ranking query {q}"))?;
-            let matches = dataset.matches.get(&q);
-            let is_true = |c: &query::Candidate| {
-                matches.is_some_and(|m| m.contains(&(c.key.keyframe_id as usize)))
-            };
-            let group = groups.entry(visit_of(matches, gap)).or_default();
-            group.scored.push(ScoredQuery {
-                ranked: outcome
-                    .candidates
-                    .iter()
-                    .map(|c| (c.score, is_true(c)))
-                    .collect(),
-                has_match: matches.is_some_and(|m| !m.is_empty()),
-            });
-            if let Some(m) = matches.filter(|m| !m.is_empty()) {
-                group.answers.push((
-                    outcome
-                        .candidates
-                        .iter()
-                        .map(|c| c.key.keyframe_id as usize)
-                        .collect(),
-                    m.clone(),
-                ));
-            }
-            let sent = outcome
-                .candidates
-                .iter()
-                .filter(|c| c.score > point.threshold)
-                .take(point.max_candidates);
-            let mut verdicts = Vec::new();
-            for c in sent {
-                let truth = is_true(c);
-                // Drawn for every candidate sent, in both passes alike.
-                let missed = (rng.next() as f64 / u64::MAX as f64) < options.wrong_rejections;
-                if truth && missed {
-                    group.wrong_rejections += 1;
-                }
-                verdicts.push(Verdict {
-                    query: spec.session.keyframe(q as u64),
-                    candidate: c.key.clone(),
-                    kind: VerificationKind::Loop,
-                    accepted: truth && !missed,
-                    relative: None,
-                    score: Some(c.score),
-                    inliers: 0,
-                    reported_at: now(),
-                });
-            }
-            if with_verdicts {
-                for v in verdicts {
-                    index.record_verdict(v);
-                }
-            }
-        }
-        let pass = pass.as_str();
-        let mut all = Group::default();
-        for (visit, group) in &groups {
-            rows.push(group.row(pass, &visit.to_string(), point));
-            all.scored.extend(group.scored.iter().cloned());
-            all.answers.extend(group.answers.iter().cloned());
-            all.wrong_rejections += group.wrong_rejections;
-        }
-        rows.push(all.row(pass, "all", point));
+        rows.extend(
+            replay_pass(&mut stream, &pass, dataset, &poses, point, options, report).await?,
+        );
     }
+    Ok(rows)
+}
+
+/// One pass over the data set on `stream`: store, ask, and (if `report`)
+/// report each candidate sent to verification; the pass's rows.
+pub(crate) async fn replay_pass<S: ReplayStream>(
+    stream: &mut S,
+    pass: &str,
+    dataset: &Dataset,
+    (reference_poses, query_poses): &(Vec<Pose>, Vec<Pose>),
+    point: OperatingPoint,
+    options: ReplayOptions,
+    report: bool,
+) -> anyhow::Result<Vec<ReplayRow>> {
+    let mut rng = Rng::new(options.seed);
+    let pairs = dataset.kind == Kind::Pairs;
+    let (candidate_robot, gap) = if pairs {
+        for (i, pose) in reference_poses.iter().enumerate() {
+            stream.store(REFERENCE_ROBOT, i, *pose).await?;
+        }
+        (REFERENCE_ROBOT, 0)
+    } else {
+        (ROBOT, dataset.min_frame_gap)
+    };
+    // Per visit: the scored queries, their rankings and wrong rejections.
+    let mut groups: BTreeMap<usize, Group> = BTreeMap::new();
+    let bar = super::run::progress(query_poses.len(), pass);
+    for (q, pose) in query_poses.iter().enumerate() {
+        bar.inc(1);
+        stream.store(ROBOT, q, *pose).await?;
+        if !pairs && q < gap {
+            continue; // nothing is eligible yet
+        }
+        let ranked = stream.ask(q, pairs, gap).await?;
+        let matches = dataset.matches.get(&q);
+        let is_true = |id: u64| matches.is_some_and(|m| m.contains(&(id as usize)));
+        let group = groups.entry(visit_of(matches, gap)).or_default();
+        group.scored.push(ScoredQuery {
+            ranked: ranked.iter().map(|&(id, s)| (s, is_true(id))).collect(),
+            has_match: matches.is_some_and(|m| !m.is_empty()),
+        });
+        if let Some(m) = matches.filter(|m| !m.is_empty()) {
+            group.answers.push((
+                ranked.iter().map(|&(id, _)| id as usize).collect(),
+                m.clone(),
+            ));
+        }
+        let sent = ranked
+            .iter()
+            .filter(|&&(_, s)| s > point.threshold)
+            .take(point.max_candidates);
+        for &(id, score) in sent {
+            let truth = is_true(id);
+            // Drawn for every candidate sent, in every pass alike.
+            let missed = (rng.next() as f64 / u64::MAX as f64) < options.wrong_rejections;
+            if truth && missed {
+                group.wrong_rejections += 1;
+            }
+            if report {
+                stream
+                    .report(q, candidate_robot, id, truth && !missed, score)
+                    .await?;
+            }
+        }
+    }
+    bar.finish_and_clear();
+    let mut rows = Vec::new();
+    let mut all = Group::default();
+    for (visit, group) in &groups {
+        rows.push(group.row(pass, &visit.to_string(), point));
+        all.scored.extend(group.scored.iter().cloned());
+        all.answers.extend(group.answers.iter().cloned());
+        all.wrong_rejections += group.wrong_rejections;
+    }
+    rows.push(all.row(pass, "all", point));
     Ok(rows)
 }
 

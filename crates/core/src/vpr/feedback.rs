@@ -423,8 +423,9 @@ mod tests {
 
     /// Two candidates at places linked by an acceptance corroborate each
     /// other, by the other's score: V_0 = (1 - e^-1) * 0.4 = 0.252848,
-    /// Λ''_0 = 0.3 + 0.7 * 0.5 * 0.252848 * 0.3 = 0.326549; V_1 = 0.632121
-    /// * 0.3 = 0.189636, Λ''_1 = 0.4 + 0.6 * 0.5 * 0.189636 * 0.4 = 0.422756.
+    /// Λ''_0 = 0.3 + 0.7 * 0.5 * 0.252848 * 0.3 = 0.326549;
+    /// V_1 = 0.632121 * 0.3 = 0.189636,
+    /// Λ''_1 = 0.4 + 0.6 * 0.5 * 0.189636 * 0.4 = 0.422756.
     /// A third candidate linked to neither is untouched.
     #[test]
     fn place_graph_by_hand() {
