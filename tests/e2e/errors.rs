@@ -395,6 +395,7 @@ fn decodes(rpc: &str, body: &[u8]) -> bool {
         "ResetSession" => proto::ResetSessionRequest::decode(body).is_ok(),
         "UpdatePoses" => proto::UpdatePosesRequest::decode(body).is_ok(),
         "Stats" => proto::StatsRequest::decode(body).is_ok(),
+        "ReportVerification" => proto::ReportVerificationRequest::decode(body).is_ok(),
         _ => unreachable!("{rpc}"),
     }
 }
