@@ -294,6 +294,50 @@ async fn every_rpc_needs_a_valid_credential_and_acts_only_for_its_robot() {
     for (rpc, status) in every_rpc(&mut client, "car-1", &own[0]).await {
         assert_eq!(status.code(), Code::Ok, "{rpc}: {status:?}");
     }
+    // A verdict is a write of the query's robot, and may name only a
+    // candidate the caller may read (car-2 shares car-1's group; truck-9
+    // does not).
+    client
+        .insert_batch(proto::InsertBatchRequest {
+            keyframes: own[..2].to_vec(),
+        })
+        .await
+        .unwrap();
+    let verdict = |robot: &str, candidate_robot: &str| proto::ReportVerificationRequest {
+        robot_id: robot.into(),
+        session_id: "s".into(),
+        keyframe_id: Some(scenes::id(&own[1])),
+        candidate: Some(proto::KeyframeRef {
+            robot_id: candidate_robot.into(),
+            session_id: "s".into(),
+            keyframe_id: Some(scenes::id(&own[0])),
+        }),
+        kind: proto::VerificationKind::Loop as i32,
+        outcome: proto::VerificationOutcome::Rejected as i32,
+        ..Default::default()
+    };
+    client
+        .report_verification(verdict("car-1", "car-1"))
+        .await
+        .unwrap();
+    let status = client
+        .report_verification(verdict("car-2", "car-1"))
+        .await
+        .unwrap_err();
+    assert_eq!(status.code(), Code::PermissionDenied, "{status:?}");
+    assert!(status.message().contains("robot_id"), "{status:?}");
+    let status = client
+        .report_verification(verdict("car-1", "truck-9"))
+        .await
+        .unwrap_err();
+    assert_eq!(status.code(), Code::PermissionDenied, "{status:?}");
+    assert!(
+        status.message().contains("candidate.robot_id"),
+        "{status:?}"
+    );
+    let stats = admin.stats(proto::StatsRequest {}).await.unwrap();
+    assert_eq!(stats.into_inner().verdicts, 1);
+
     // The admin acts for any robot.
     let erased = admin
         .reset_session(proto::ResetSessionRequest {
