@@ -122,6 +122,28 @@ fn seeds() -> Vec<(&'static str, Vec<u8>)> {
             }
             .encode_to_vec(),
         ),
+        (
+            "ReportVerification",
+            proto::ReportVerificationRequest {
+                robot_id: "car-1".into(),
+                session_id: "s".into(),
+                keyframe_id: Some(9),
+                candidate: Some(proto::KeyframeRef {
+                    robot_id: "car-2".into(),
+                    session_id: "t".into(),
+                    keyframe_id: Some(4),
+                }),
+                kind: proto::VerificationKind::Merge as i32,
+                outcome: proto::VerificationOutcome::Accepted as i32,
+                relative: Some(proto::RelativeTransform {
+                    pose: keyframe().pose,
+                    scale: 1.5,
+                }),
+                score: Some(0.7),
+                inliers: 40,
+            }
+            .encode_to_vec(),
+        ),
     ]
 }
 
@@ -205,6 +227,11 @@ fn decode_and_validate(rpc: &str, bytes: &[u8]) {
                 let _ = validate::pose_updates(&r);
             }
         }
+        "ReportVerification" => {
+            if let Ok(r) = proto::ReportVerificationRequest::decode(bytes) {
+                let _ = validate::verification(&r);
+            }
+        }
         other => unreachable!("{other}"),
     }
 }
@@ -231,6 +258,11 @@ fn the_seeds_are_valid_requests() {
                 validate::pose_updates(&proto::UpdatePosesRequest::decode(&bytes[..]).unwrap())
                     .unwrap();
             }
+            "ReportVerification" => {
+                let r = proto::ReportVerificationRequest::decode(&bytes[..]).unwrap();
+                let v = validate::verification(&r).unwrap();
+                assert_eq!(v.relative.map(|t| t.scale), Some(1.5));
+            }
             _ => unreachable!(),
         }
     }
@@ -250,7 +282,7 @@ proptest! {
 
     #[test]
     fn fuzz_random_bytes_decode_and_validate_without_panicking(
-        rpc in prop::sample::select(vec!["Insert", "InsertBatch", "Query", "Erase", "UpdatePoses"]),
+        rpc in prop::sample::select(vec!["Insert", "InsertBatch", "Query", "Erase", "UpdatePoses", "ReportVerification"]),
         bytes in prop::collection::vec(any::<u8>(), 0..512),
     ) {
         decode_and_validate(rpc, &bytes);

@@ -136,3 +136,70 @@ fn a_query_with_features_needs_a_frame_id() {
         "frame_id: required"
     );
 }
+
+/// A valid verdict: an accepted merge with a Sim(3) estimate.
+fn verdict_msg() -> proto::ReportVerificationRequest {
+    proto::ReportVerificationRequest {
+        robot_id: "r".into(),
+        session_id: "s".into(),
+        keyframe_id: Some(9),
+        candidate: Some(proto::KeyframeRef {
+            robot_id: "q".into(),
+            session_id: String::new(),
+            keyframe_id: Some(4),
+        }),
+        kind: proto::VerificationKind::Merge as i32,
+        outcome: proto::VerificationOutcome::Accepted as i32,
+        relative: Some(proto::RelativeTransform {
+            pose: keyframe_msg().pose,
+            scale: 0.0,
+        }),
+        score: Some(0.4),
+        inliers: 30,
+    }
+}
+
+#[test]
+fn verdicts_are_normalised_and_refusals_name_the_field() {
+    let v = verification(&verdict_msg()).unwrap();
+    assert_eq!(v.query.keyframe_id, 9);
+    assert_eq!(v.candidate.robot_id, "q");
+    assert_eq!(v.kind, VerificationKind::Merge);
+    assert!(v.accepted);
+    // Scale 0 means 1; the rotation is normalised.
+    let relative = v.relative.unwrap();
+    assert_eq!(relative.scale, 1.0);
+    assert_eq!(relative.pose.rotation, [1.0, 0.0, 0.0, 0.0]);
+    // A rejection carries no transform.
+    let mut rejected = verdict_msg();
+    rejected.outcome = proto::VerificationOutcome::Rejected as i32;
+    assert!(verification(&rejected).unwrap().relative.is_none());
+
+    let refused = |change: &dyn Fn(&mut proto::ReportVerificationRequest)| {
+        let mut r = verdict_msg();
+        change(&mut r);
+        verification(&r).unwrap_err().to_string()
+    };
+    assert!(refused(&|r| r.robot_id.clear()).starts_with("robot_id"));
+    assert!(refused(&|r| r.keyframe_id = None).starts_with("keyframe_id: required"));
+    assert!(refused(&|r| r.candidate = None).starts_with("candidate: required"));
+    assert!(
+        refused(&|r| r.candidate.as_mut().unwrap().keyframe_id = None)
+            .starts_with("candidate.keyframe_id: required")
+    );
+    assert!(refused(&|r| r.kind = 0).starts_with("kind: required"));
+    assert!(refused(&|r| r.kind = 9).starts_with("kind: unknown value 9"));
+    assert!(refused(&|r| r.outcome = 0).starts_with("outcome: required"));
+    assert!(refused(&|r| r.score = Some(1.5)).starts_with("score"));
+    assert!(refused(&|r| r.relative.as_mut().unwrap().scale = -2.0).starts_with("relative.scale"));
+    assert!(refused(&|r| r.relative.as_mut().unwrap().pose = None).starts_with("relative.pose"));
+    // A keyframe is not its own candidate.
+    assert!(refused(&|r| {
+        r.candidate = Some(proto::KeyframeRef {
+            robot_id: "r".into(),
+            session_id: "s".into(),
+            keyframe_id: Some(9),
+        })
+    })
+    .starts_with("candidate: is the query keyframe itself"));
+}
