@@ -400,12 +400,17 @@ impl Index {
     /// Where a stored keyframe is (its map and camera centre), for the
     /// verdicts' place tests.
     pub fn place<'a>(&'a self, key: &KeyframeKey) -> Option<Place<'a>> {
-        let meta = &self.rows[self.row_of(key)?];
-        Some(Place {
+        Some(self.place_of_row(self.row_of(key)?))
+    }
+
+    /// Where the keyframe of `row` is. Panics if `row` is out of range.
+    pub fn place_of_row(&self, row: usize) -> Place<'_> {
+        let meta = &self.rows[row];
+        Place {
             key: &meta.key,
             map_id: meta.map_id,
             position: meta.pose.translation,
-        })
+        }
     }
 
     /// Removes a keyframe's row, leaving its verdicts.

@@ -70,6 +70,14 @@ pub struct Verdict {
     pub reported_at: f64,
 }
 
+/// Seconds since the Unix epoch: the clock verdicts are stamped and decay
+/// by.
+pub fn unix_now() -> f64 {
+    std::time::SystemTime::now()
+        .duration_since(std::time::UNIX_EPOCH)
+        .map_or(0.0, |d| d.as_secs_f64())
+}
+
 /// What identifies a verdict: the newest one for the same triple wins.
 #[derive(Debug, Clone, PartialEq, Eq, Hash, PartialOrd, Ord)]
 pub struct VerdictKey {

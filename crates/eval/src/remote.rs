@@ -368,19 +368,7 @@ impl verdict_replay::ReplayStream for RemoteStream<'_> {
             index,
             image_bytes(path, None)?,
         );
-        kf.pose = Some(proto::Pose {
-            translation: Some(proto::Vec3 {
-                x: pose.translation[0],
-                y: pose.translation[1],
-                z: pose.translation[2],
-            }),
-            rotation: Some(proto::Quaternion {
-                w: pose.rotation[0],
-                x: pose.rotation[1],
-                y: pose.rotation[2],
-                z: pose.rotation[3],
-            }),
-        });
+        kf.pose = Some(humem_server::api::convert::pose(&pose));
         self.remote.insert(kf).await?;
         Ok(())
     }

@@ -354,7 +354,7 @@ struct LocalDatabase {
 }
 
 /// Keyframe `index` of `robot`'s one session, as the index stores it.
-fn stored(robot: &str, index: usize, features: &Features) -> SemanticKeyframe {
+pub(super) fn stored(robot: &str, index: usize, features: &Features) -> SemanticKeyframe {
     SemanticKeyframe {
         key: KeyframeKey {
             robot_id: robot.into(),

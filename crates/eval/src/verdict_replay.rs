@@ -38,7 +38,7 @@ use super::metrics;
 use super::precision::{self, OperatingPoint, ScoredQuery};
 use super::truth::Kind;
 use humem_core::index::Index;
-use humem_core::keyframe::{Features, KeyframeKey, Pose, SemanticKeyframe, SessionKey};
+use humem_core::keyframe::{Features, Pose, SemanticKeyframe, SessionKey};
 use humem_core::synthetic::Rng;
 use humem_core::verdict::{Verdict, VerificationKind};
 use humem_core::vpr::{Layers, Scope, VerdictParams, VprParams};
@@ -147,19 +147,11 @@ pub struct ReplayRow {
     pub wrong_rejections: usize,
 }
 
-/// A keyframe of the stream.
+/// A keyframe of the stream: as the evaluation stores one, at `pose`.
 fn keyframe(robot: &str, index: usize, features: &Features, pose: Pose) -> SemanticKeyframe {
     SemanticKeyframe {
-        key: KeyframeKey {
-            robot_id: robot.into(),
-            session_id: String::new(),
-            keyframe_id: index as u64,
-        },
-        frame_id: index as u64,
-        timestamp: index as f64,
-        map_id: 0,
         pose,
-        features: features.clone(),
+        ..super::run::stored(robot, index, features)
     }
 }
 
@@ -322,7 +314,7 @@ impl ReplayStream for LocalStream<'_> {
             relative: None,
             score: Some(score),
             inliers: 0,
-            reported_at: now(),
+            reported_at: humem_core::verdict::unix_now(),
         });
         Ok(())
     }
@@ -476,12 +468,6 @@ pub(crate) async fn replay_pass<S: ReplayStream>(
     }
     rows.push(all.row(pass, "all", point));
     Ok(rows)
-}
-
-fn now() -> f64 {
-    std::time::SystemTime::now()
-        .duration_since(std::time::UNIX_EPOCH)
-        .map_or(0.0, |d| d.as_secs_f64())
 }
 
 /// The queries of one visit class.

@@ -277,9 +277,7 @@ impl PlaceRecognition for PlaceRecognitionService {
         span.record("robot", verdict.query.robot_id.as_str());
         span.record("kind", tracing::field::debug(verdict.kind));
         span.record("accepted", verdict.accepted);
-        verdict.reported_at = std::time::SystemTime::now()
-            .duration_since(std::time::UNIX_EPOCH)
-            .map_or(0.0, |d| d.as_secs_f64());
+        verdict.reported_at = humem_core::verdict::unix_now();
         let stored = self
             .pipeline
             .apply(Mutation::ReportVerdict(verdict))

@@ -162,7 +162,13 @@ pub fn run(
         eligible: eligible_count,
     } = vpr::rank_timed(params, spec.layers, &query, index, &eligible);
     let clock = std::time::Instant::now();
-    apply_verdicts(index, params, stored_row, &mut ranked, unix_now());
+    apply_verdicts(
+        index,
+        params,
+        stored_row,
+        &mut ranked,
+        humem_core::verdict::unix_now(),
+    );
     timings.fusion += clock.elapsed();
     let candidates = vpr::select(ranked, spec.threshold, spec.top_n)
         .into_iter()
@@ -180,13 +186,6 @@ pub fn run(
     })
 }
 
-/// Seconds since the Unix epoch, the clock verdicts decay by.
-fn unix_now() -> f64 {
-    std::time::SystemTime::now()
-        .duration_since(std::time::UNIX_EPOCH)
-        .map_or(0.0, |d| d.as_secs_f64())
-}
-
 /// Changes the ranked candidates' scores by SLAM's stored verdicts
 /// ([`vpr::feedback`]) and puts them back in order. The query's place is
 /// its stored keyframe's, when it is one; the verdicts looked at are those
@@ -202,18 +201,8 @@ pub fn apply_verdicts(
     if !params.verdicts.enabled || book.is_empty() || ranked.is_empty() {
         return;
     }
-    let query = stored_row.and_then(|row| index.place(&index.meta(row).key));
-    let candidates: Vec<Place> = ranked
-        .iter()
-        .map(|r| {
-            let meta = index.meta(r.row);
-            Place {
-                key: &meta.key,
-                map_id: meta.map_id,
-                position: meta.pose.translation,
-            }
-        })
-        .collect();
+    let query = stored_row.map(|row| index.place_of_row(row));
+    let candidates: Vec<Place> = ranked.iter().map(|r| index.place_of_row(r.row)).collect();
     let sessions: Vec<SessionKey> = query
         .iter()
         .chain(&candidates)

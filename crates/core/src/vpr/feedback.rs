@@ -201,14 +201,13 @@ fn pair_evidence(
     verdicts: &[PlacedVerdict],
     radius: f64,
 ) -> (f64, f64, u32, u32) {
-    let linking: Vec<&PlacedVerdict> = verdicts.iter().filter(|v| v.links(x, y, radius)).collect();
-    let newest_acceptance = linking
-        .iter()
+    let linking = || verdicts.iter().filter(|v| v.links(x, y, radius));
+    let newest_acceptance = linking()
         .filter(|v| v.accepted)
         .map(|v| v.reported_at)
         .fold(f64::NEG_INFINITY, f64::max);
     let (mut r, mut a, mut nr, mut na) = (0.0, 0.0, 0, 0);
-    for v in linking {
+    for v in linking() {
         if v.accepted {
             a += v.weight;
             na += 1;
