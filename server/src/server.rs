@@ -51,7 +51,6 @@ pub async fn serve(config: Config) -> anyhow::Result<()> {
     let limits = Limits {
         scene_top_k: config.store.scene_top_k,
         min_frame_gap: config.query.min_frame_gap,
-        threshold: config.vpr.threshold(),
         top_n: config.vpr.max_candidates,
     };
     let perception = if config.perception.enabled {
@@ -138,6 +137,10 @@ pub async fn serve(config: Config) -> anyhow::Result<()> {
         .context("building the reflection service (v1alpha)")?;
 
     metrics::store_opened(&store);
+    let point = store
+        .index()
+        .operating_point(&config.vpr, humem_core::verdict::unix_now());
+    metrics::OPERATING_THRESHOLD.set(f64::from(point.threshold));
     let (stop_tx, stop_rx) = tokio::sync::watch::channel(false);
     // True from the moment the gRPC port is open until shutdown begins.
     let (serving_tx, serving_rx) = tokio::sync::watch::channel(false);

@@ -192,3 +192,114 @@ async fn a_look_alike_rejected_twice_falls_below_the_true_place_until_accepted()
         .unwrap();
     assert_eq!(server.stats().await.verdicts, 0);
 }
+
+/// A verdict on `candidate` for `query` with the score HuMem gave it.
+fn scored(
+    query: u64,
+    candidate: u64,
+    accepted: bool,
+    score: f32,
+) -> proto::ReportVerificationRequest {
+    proto::ReportVerificationRequest {
+        score: Some(score),
+        ..verdict(query, candidate, accepted)
+    }
+}
+
+#[tokio::test(flavor = "multi_thread")]
+async fn rejections_raise_the_operating_point_and_it_holds_across_restarts() {
+    let dir = tempfile::tempdir().unwrap();
+    let adapting = ["HUMEM_VPR__VERDICTS__MIN_VERDICTS=4"];
+    let server = Server::start_with(dir.path(), &adapting);
+    let mut client = server.client().await;
+    let mut world = World::new(60, 11);
+    let keyframes: Vec<proto::Keyframe> = (0..40)
+        .map(|i| kf(1000 + 10 * i, world.view(i as usize, 0.3)))
+        .collect();
+    insert_all(&mut client, keyframes).await;
+    let point = server.stats().await.operating_point.unwrap();
+    assert_eq!((point.threshold, point.configured_threshold), (0.36, 0.36));
+    assert_eq!((point.estimated_precision, point.verdicts), (None, 0));
+
+    // Three rejections just above the configured threshold and two
+    // acceptances well above it. With the default miss rate 0.1: at 0.36,
+    // n = 5, T̂ = min(5, 2 / 0.9) = 2.222, p̂ = 0.444; the first grid point
+    // with p̂ ≥ 0.98 is 0.43 (n = 2, T̂ = 2, p̂ = 1).
+    for (i, (accepted, score)) in [
+        (false, 0.405),
+        (false, 0.415),
+        (false, 0.425),
+        (true, 0.6),
+        (true, 0.7),
+    ]
+    .into_iter()
+    .enumerate()
+    {
+        client
+            .report_verification(scored(1390, 1000 + 10 * i as u64, accepted, score))
+            .await
+            .unwrap();
+    }
+    let expect_adapted = |point: &proto::OperatingPoint| {
+        assert!((point.threshold - 0.43).abs() < 1e-4, "{point:?}");
+        assert_eq!(point.configured_threshold, 0.36);
+        assert_eq!(point.verdicts, 5);
+        assert!(
+            (point.configured_precision.unwrap() - 0.444_444).abs() < 1e-4,
+            "{point:?}"
+        );
+        assert!(
+            (point.estimated_precision.unwrap() - 1.0).abs() < 1e-9,
+            "{point:?}"
+        );
+    };
+    expect_adapted(&server.stats().await.operating_point.unwrap());
+
+    // A query naming no threshold is answered at the adapted one; one
+    // naming its own keeps it.
+    let reply = client
+        .query(query_stored("r", "s", 1200))
+        .await
+        .unwrap()
+        .into_inner();
+    assert!((reply.threshold - 0.43).abs() < 1e-4, "{reply:?}");
+    assert_eq!(reply.operating_threshold, reply.threshold);
+    assert!(reply.candidates.iter().all(|c| c.score > reply.threshold));
+    let mut own = query_stored("r", "s", 1200);
+    own.threshold = Some(0.1);
+    let reply = client.query(own).await.unwrap().into_inner();
+    assert_eq!(reply.threshold, 0.1);
+    assert!((reply.operating_threshold - 0.43).abs() < 1e-4);
+    let gauge = Server::sample(&server.scrape(), "humem_operating_threshold").unwrap();
+    assert!(
+        (gauge - 0.43).abs() < 1e-4,
+        "the gauge follows the queries: {gauge}"
+    );
+
+    // The verdicts, and so the operating point, survive SIGKILL.
+    drop(client);
+    server.kill();
+    let server = Server::start_with(dir.path(), &adapting);
+    expect_adapted(&server.stats().await.operating_point.unwrap());
+    server.kill();
+
+    // Turned off, the configured threshold serves, verdicts or not.
+    let server = Server::start_with(
+        dir.path(),
+        &[
+            "HUMEM_VPR__VERDICTS__MIN_VERDICTS=4",
+            "HUMEM_VPR__VERDICTS__ADAPT_THRESHOLD=false",
+        ],
+    );
+    let point = server.stats().await.operating_point.unwrap();
+    assert_eq!(point.threshold, 0.36);
+    assert_eq!(point.estimated_precision, None);
+    let reply = server
+        .client()
+        .await
+        .query(query_stored("r", "s", 1200))
+        .await
+        .unwrap()
+        .into_inner();
+    assert_eq!(reply.threshold, 0.36);
+}

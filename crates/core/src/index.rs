@@ -12,6 +12,7 @@
 //! query never has to look them up in a tree.
 
 use std::collections::{BTreeMap, HashMap, HashSet};
+use std::sync::{Mutex, PoisonError};
 
 use crate::keyframe::{
     KeyframeKey, ObjectObservation, Pose, SceneClass, SemanticKeyframe, SessionKey,
@@ -20,7 +21,8 @@ use crate::row_ids::{Eligibility, Interner, RowIds};
 use crate::verdict::{Verdict, VerdictBook};
 use crate::vpr::appearance::AppearanceMatrix;
 use crate::vpr::eligibility::QueryContext;
-use crate::vpr::feedback::Place;
+use crate::vpr::feedback::{Place, VerdictParams};
+use crate::vpr::operating_point::{OperatingPoint, Sample};
 use crate::vpr::{self, DescriptorMatrix, KeyframeMemory};
 
 /// A map: (robot, session, map id).
@@ -159,7 +161,25 @@ pub struct Index {
     /// SLAM's verdicts on pairs of stored keyframes; a verdict goes with
     /// either of its keyframes ([`Index::remove`]).
     verdicts: VerdictBook,
+    /// The operating point last estimated from `verdicts`
+    /// ([`Index::operating_point`]); dropped when they change.
+    operating_point: Mutex<Option<CachedPoint>>,
 }
+
+/// An operating point and what it was estimated with.
+#[derive(Debug)]
+struct CachedPoint {
+    params: VerdictParams,
+    base: f32,
+    at: f64,
+    point: OperatingPoint,
+}
+
+/// Seconds an estimated operating point is reused while no verdict
+/// changes: the verdicts' weights decay over days, so a minute moves
+/// nothing that matters, and a busy server estimates it once a minute
+/// instead of once a query.
+pub const OPERATING_POINT_REFRESH_S: f64 = 60.0;
 
 impl Index {
     /// An empty index for descriptors of length `dim` (0 while unknown).
@@ -176,6 +196,7 @@ impl Index {
             tracks: HashMap::new(),
             text_df: HashMap::new(),
             verdicts: VerdictBook::new(),
+            operating_point: Mutex::new(None),
         }
     }
 
@@ -382,7 +403,9 @@ impl Index {
     /// Removes a keyframe and every verdict naming it; returns true if it
     /// was stored.
     pub fn remove(&mut self, key: &KeyframeKey) -> bool {
-        self.verdicts.forget(key);
+        if self.verdicts.forget(key) > 0 {
+            self.forget_operating_point();
+        }
         self.remove_row(key)
     }
 
@@ -394,7 +417,61 @@ impl Index {
     /// Records a verdict (the store has checked that both of its keyframes
     /// are stored); says whether it replaced one on the same pair and kind.
     pub fn record_verdict(&mut self, verdict: Verdict) -> bool {
+        self.forget_operating_point();
         self.verdicts.record(verdict)
+    }
+
+    /// The store's operating point at `now` (seconds since the epoch):
+    /// the threshold a query that names none gets, adapted from the
+    /// scored verdicts by [`vpr::operating_point`] when
+    /// `vpr.verdicts.enabled` and `adapt_threshold` are on, else the
+    /// configured one. Reused for [`OPERATING_POINT_REFRESH_S`] while no
+    /// verdict changes.
+    pub fn operating_point(&self, params: &vpr::VprParams, now: f64) -> OperatingPoint {
+        let base = params.threshold();
+        let verdict_params = &params.verdicts;
+        if !(verdict_params.enabled && verdict_params.adapt_threshold) {
+            return OperatingPoint::fixed(base);
+        }
+        let mut cache = self
+            .operating_point
+            .lock()
+            .unwrap_or_else(PoisonError::into_inner);
+        if let Some(c) = cache.as_ref() {
+            if c.base == base
+                && c.params == *verdict_params
+                && (now - c.at).abs() < OPERATING_POINT_REFRESH_S
+            {
+                return c.point;
+            }
+        }
+        let samples: Vec<Sample> = self
+            .verdicts
+            .iter()
+            .filter_map(|v| {
+                Some(Sample {
+                    score: v.score?,
+                    accepted: v.accepted,
+                    weight: verdict_params.weight(v.reported_at, now),
+                })
+            })
+            .collect();
+        let point = vpr::operating_point::adapt(&verdict_params.rule(base), &samples);
+        *cache = Some(CachedPoint {
+            params: verdict_params.clone(),
+            base,
+            at: now,
+            point,
+        });
+        point
+    }
+
+    /// Drops the cached operating point (the verdicts changed).
+    fn forget_operating_point(&mut self) {
+        *self
+            .operating_point
+            .get_mut()
+            .unwrap_or_else(PoisonError::into_inner) = None;
     }
 
     /// Where a stored keyframe is (its map and camera centre), for the

@@ -21,7 +21,9 @@
 //! - [`text_recall`]: how often OCR reads the signs in view (`humem text-recall`);
 //! - [`verdict_replay`]: the stream replayed with the ground truth as
 //!   geometric verification, without and with verdicts (`--replay-verdicts`);
-//! - [`bench`]: time per model and batch size (`humem bench perception`).
+//! - [`bench`]: time per model and batch size (`humem bench perception`);
+//! - [`verdict_bench`]: what stored verdicts add to a query's cost
+//!   (`humem bench verdicts`).
 
 pub mod annotations;
 pub mod baseline;
@@ -37,4 +39,5 @@ pub mod run;
 pub mod scan_bench;
 pub mod text_recall;
 pub mod truth;
+pub mod verdict_bench;
 pub mod verdict_replay;

@@ -335,10 +335,12 @@ mod tests {
                     ScoredQuery {
                         ranked: vec![(0.9, true)],
                         has_match: true,
+                        threshold: None,
                     },
                     ScoredQuery {
                         ranked: vec![(0.5, false)],
                         has_match: false,
+                        threshold: None,
                     },
                 ],
                 OperatingPoint {

@@ -21,6 +21,10 @@ pub struct ScoredQuery {
     pub ranked: Vec<(f32, bool)>,
     /// Whether any valid match exists for this query (ranked or not).
     pub has_match: bool,
+    /// The threshold this query was answered at, where it was not the
+    /// operating point's (a store's adapted threshold when it was asked,
+    /// `vpr.verdicts.adapt_threshold`); None: the operating point's.
+    pub threshold: Option<f32>,
 }
 
 /// The operating point: what passes to the client.
@@ -94,7 +98,7 @@ pub fn precision(queries: &[ScoredQuery], point: OperatingPoint) -> Precision {
         let sent: Vec<bool> = q
             .ranked
             .iter()
-            .filter(|(score, _)| *score > point.threshold)
+            .filter(|(score, _)| *score > q.threshold.unwrap_or(point.threshold))
             .take(point.max_candidates)
             .map(|&(_, valid)| valid)
             .collect();
@@ -186,6 +190,7 @@ mod tests {
         ScoredQuery {
             ranked: ranked.to_vec(),
             has_match,
+            threshold: None,
         }
     }
 
@@ -239,6 +244,24 @@ mod tests {
                 (0.45, true, true),
             ]
         );
+    }
+
+    /// A query answered at its own (adapted) threshold: C at 0.75 sends
+    /// nothing (no false alarm left), E at 0.4 is answered (its valid 0.45).
+    #[test]
+    fn per_query_thresholds_by_hand() {
+        let mut queries = sample();
+        queries[2].threshold = Some(0.75);
+        queries[4].threshold = Some(0.4);
+        let p = precision(&queries, POINT);
+        assert_eq!(p.answered, 4);
+        assert_eq!(p.false_no_match, 0);
+        assert_eq!(p.false_alarm_rate, 0.0);
+        // Valid tops answered: A, D, E → 3 of 4.
+        assert_eq!(p.recall_at_threshold, 0.75);
+        // Sent: A 2 (1 valid), B 2 (1), D 1 (1), E 1 (1) → 4 / 6.
+        assert_eq!(p.candidates, 6);
+        assert!((p.candidate_precision - 4.0 / 6.0).abs() < 1e-12);
     }
 
     #[test]

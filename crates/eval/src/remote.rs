@@ -30,7 +30,7 @@ use super::degrade::Degradation;
 use super::precision::OperatingPoint;
 use super::run::{image_bytes, progress, Samples, Selection};
 use super::truth::Kind;
-use super::verdict_replay::{self, ReplayOptions, ReplayRow};
+use super::verdict_replay::{self, Asked, ReplayOptions, ReplayRow};
 use humem_core::vpr::Layers;
 use humem_server::proto;
 use humem_server::proto::place_recognition_client::PlaceRecognitionClient;
@@ -373,7 +373,7 @@ impl verdict_replay::ReplayStream for RemoteStream<'_> {
         Ok(())
     }
 
-    async fn ask(&mut self, q: usize, pairs: bool, gap: usize) -> anyhow::Result<Vec<(u64, f32)>> {
+    async fn ask(&mut self, q: usize, pairs: bool, gap: usize) -> anyhow::Result<Asked> {
         let (scope, robot_ids) = if pairs {
             (
                 proto::Scope::Listed,
@@ -408,11 +408,14 @@ impl verdict_replay::ReplayStream for RemoteStream<'_> {
                 reply.status()
             );
         }
-        Ok(reply
-            .candidates
-            .iter()
-            .map(|c| (c.keyframe_id, c.score))
-            .collect())
+        Ok(Asked {
+            ranked: reply
+                .candidates
+                .iter()
+                .map(|c| (c.keyframe_id, c.score))
+                .collect(),
+            threshold: reply.operating_threshold,
+        })
     }
 
     async fn report(

@@ -224,6 +224,7 @@ impl Samples {
         self.scored.push(ScoredQuery {
             ranked: ranked.iter().map(|(r, s)| (*s, valid(r))).collect(),
             has_match: matches.is_some_and(|m| !m.is_empty()),
+            threshold: None,
         });
     }
 
@@ -509,7 +510,7 @@ impl LocalDatabase {
                     readable_robots: None,
                     min_frame_gap: 0,
                     top_n: config.vpr.top_k,
-                    threshold: 0.0,
+                    threshold: Some(0.0),
                     layers,
                     kind: QueryKind::LoopClosure,
                 };

@@ -176,7 +176,7 @@ fn spec(keyframe_id: u64, top_n: usize) -> QuerySpec {
         readable_robots: None,
         min_frame_gap: 30,
         top_n,
-        threshold: 0.0,
+        threshold: Some(0.0),
         layers: Layers::SCAL,
         kind: QueryKind::LoopClosure,
     }

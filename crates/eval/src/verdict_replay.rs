@@ -5,8 +5,11 @@
 //! Every frame is stored as a keyframe as it comes and then asked about
 //! (a loop: `SCOPE_SAME_MAP` with the data set's frame gap; pairs: the
 //! references are stored first, then each query frame is stored and asked
-//! about against them). The candidates above the operating point (threshold
-//! and `max_candidates` of `[vpr]`) are what a SLAM system would verify:
+//! about against them). The candidates above the operating point (the
+//! store's threshold when the query was asked, which its verdicts may have
+//! raised (`vpr.verdicts.adapt_threshold`; the configured one without
+//! verdicts), and `max_candidates` of `[vpr]`) are what a SLAM system would
+//! verify:
 //! each one is "accepted" when the ground truth calls it a true place and
 //! "rejected" otherwise, and a configurable share of the true places is
 //! rejected all the same (`--wrong-rejections`, geometry's misses under
@@ -106,8 +109,15 @@ impl Variant {
                 "support_gain" => p.support_gain = value.parse().map_err(|_| bad())?,
                 "place_graph" => p.place_graph = value.parse().map_err(|_| bad())?,
                 "half_life_hours" => p.half_life_hours = value.parse().map_err(|_| bad())?,
+                "adapt_threshold" => p.adapt_threshold = value.parse().map_err(|_| bad())?,
+                "target_precision" => p.target_precision = value.parse().map_err(|_| bad())?,
+                "geometry_miss_rate" => p.geometry_miss_rate = value.parse().map_err(|_| bad())?,
+                "min_verdicts" => p.min_verdicts = value.parse().map_err(|_| bad())?,
+                "max_threshold_raise" => {
+                    p.max_threshold_raise = value.parse().map_err(|_| bad())?
+                }
                 other => anyhow::bail!(
-                    "--replay-variant {}: no verdict setting {other:?} (enabled, radius_m, max_penalty, support_gain, place_graph, half_life_hours)",
+                    "--replay-variant {}: no verdict setting {other:?} (enabled, radius_m, max_penalty, support_gain, place_graph, half_life_hours, adapt_threshold, target_precision, geometry_miss_rate, min_verdicts, max_threshold_raise)",
                     self.name
                 ),
             }
@@ -226,8 +236,10 @@ pub(crate) trait ReplayStream {
     /// in map 0 of its one session, at `pose`.
     async fn store(&mut self, robot: &str, index: usize, pose: Pose) -> anyhow::Result<()>;
     /// Asks about stored frame `q` of the drive, with no threshold: the
-    /// ranked `(keyframe id, score)` of the candidate robot's keyframes.
-    async fn ask(&mut self, q: usize, pairs: bool, gap: usize) -> anyhow::Result<Vec<(u64, f32)>>;
+    /// ranked `(keyframe id, score)` of the candidate robot's keyframes,
+    /// and the store's operating threshold at that moment (what a query
+    /// naming none would have been answered at).
+    async fn ask(&mut self, q: usize, pairs: bool, gap: usize) -> anyhow::Result<Asked>;
     /// Reports the verdict on candidate `candidate` of `robot` for query
     /// frame `q`.
     async fn report(
@@ -238,6 +250,15 @@ pub(crate) trait ReplayStream {
         accepted: bool,
         score: f32,
     ) -> anyhow::Result<()>;
+}
+
+/// One query's answer in a replay.
+#[derive(Debug, Clone, Default)]
+pub(crate) struct Asked {
+    /// `(keyframe id, score)`, best first.
+    pub ranked: Vec<(u64, f32)>,
+    /// The store's operating threshold when it was asked.
+    pub threshold: f32,
 }
 
 /// The in-process stream: the service's own index and query path.
@@ -259,7 +280,7 @@ impl ReplayStream for LocalStream<'_> {
         Ok(())
     }
 
-    async fn ask(&mut self, q: usize, pairs: bool, gap: usize) -> anyhow::Result<Vec<(u64, f32)>> {
+    async fn ask(&mut self, q: usize, pairs: bool, gap: usize) -> anyhow::Result<Asked> {
         let spec = QuerySpec {
             session: SessionKey {
                 robot_id: ROBOT.into(),
@@ -281,17 +302,20 @@ impl ReplayStream for LocalStream<'_> {
             readable_robots: None,
             min_frame_gap: gap as u64,
             top_n: self.params.top_k,
-            threshold: 0.0,
+            threshold: Some(0.0),
             layers: Layers::FULL,
             kind: QueryKind::LoopClosure,
         };
         let outcome = query::run(&self.index, &self.params, &spec)
             .with_context(|| format!("ranking query {q}"))?;
-        Ok(outcome
-            .candidates
-            .iter()
-            .map(|c| (c.key.keyframe_id, c.score))
-            .collect())
+        Ok(Asked {
+            ranked: outcome
+                .candidates
+                .iter()
+                .map(|c| (c.key.keyframe_id, c.score))
+                .collect(),
+            threshold: outcome.operating_point.threshold,
+        })
     }
 
     async fn report(
@@ -425,13 +449,21 @@ pub(crate) async fn replay_pass<S: ReplayStream>(
         if !pairs && q < gap {
             continue; // nothing is eligible yet
         }
-        let ranked = stream.ask(q, pairs, gap).await?;
+        let asked = stream.ask(q, pairs, gap).await?;
+        // Without verdicts, the configured threshold: a store's adapted
+        // one is the verdicts' doing.
+        let (ranked, threshold) = if report {
+            (asked.ranked, asked.threshold)
+        } else {
+            (asked.ranked, point.threshold)
+        };
         let matches = dataset.matches.get(&q);
         let is_true = |id: u64| matches.is_some_and(|m| m.contains(&(id as usize)));
         let group = groups.entry(visit_of(matches, gap)).or_default();
         group.scored.push(ScoredQuery {
             ranked: ranked.iter().map(|&(id, s)| (s, is_true(id))).collect(),
             has_match: matches.is_some_and(|m| !m.is_empty()),
+            threshold: Some(threshold),
         });
         if let Some(m) = matches.filter(|m| !m.is_empty()) {
             group.answers.push((
@@ -441,7 +473,7 @@ pub(crate) async fn replay_pass<S: ReplayStream>(
         }
         let sent = ranked
             .iter()
-            .filter(|&&(_, s)| s > point.threshold)
+            .filter(|&&(_, s)| s > threshold)
             .take(point.max_candidates);
         for &(id, score) in sent {
             let truth = is_true(id);

@@ -57,6 +57,12 @@ async fn main() -> anyhow::Result<()> {
             humem_eval::restart_bench::restart(args).await
         }
         #[cfg(feature = "eval")]
+        Command::Bench(BenchCommand::Verdicts(args)) => {
+            let config = Config::load(cli.config.as_deref(), figment::Figment::new())?;
+            init_logging(LogFormat::Plain, "warn");
+            humem_eval::verdict_bench::verdicts(config, args)
+        }
+        #[cfg(feature = "eval")]
         Command::Bench(BenchCommand::Cluster(args)) => {
             init_logging(LogFormat::Plain, "warn");
             cli::cluster_bench::run(args).await

@@ -191,6 +191,7 @@ pub fn query_response(outcome: &QueryOutcome) -> proto::QueryResponse {
         timings: timings(&outcome.timings),
         status: proto::QueryStatus::Answered as i32,
         threshold: outcome.threshold,
+        operating_threshold: outcome.operating_point.threshold,
     }
 }
 

@@ -17,7 +17,6 @@ use crate::proto;
 const LIMITS: Limits = Limits {
     scene_top_k: 16,
     min_frame_gap: 100,
-    threshold: 0.36,
     top_n: 5,
 };
 
@@ -213,7 +212,7 @@ fn decode_and_validate(rpc: &str, bytes: &[u8]) {
             if let Ok(r) = proto::QueryRequest::decode(bytes) {
                 if let Ok(spec) = validate::query(r, &LIMITS) {
                     assert!(spec.top_n >= 1);
-                    assert!((0.0..=1.0).contains(&spec.threshold));
+                    assert!(spec.threshold.is_none_or(|t| (0.0..=1.0).contains(&t)));
                 }
             }
         }

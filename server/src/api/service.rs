@@ -16,6 +16,7 @@ use crate::pipeline::{Pipeline, QueryAnswer};
 use crate::proto;
 use crate::proto::place_recognition_server::PlaceRecognition;
 use crate::quota::Quotas;
+use humem_core::verdict::unix_now;
 use humem_store::{MapKey, Mutation};
 
 /// What limits callers: who they are and what they may do ([`auth`]), and
@@ -277,7 +278,7 @@ impl PlaceRecognition for PlaceRecognitionService {
         span.record("robot", verdict.query.robot_id.as_str());
         span.record("kind", tracing::field::debug(verdict.kind));
         span.record("accepted", verdict.accepted);
-        verdict.reported_at = humem_core::verdict::unix_now();
+        verdict.reported_at = unix_now();
         let stored = self
             .pipeline
             .apply(Mutation::ReportVerdict(verdict))
@@ -296,8 +297,9 @@ impl PlaceRecognition for PlaceRecognitionService {
         let caller = self.auth.caller("Stats", &request)?;
         // Only the maps the caller may read are listed.
         let readable = caller.readable_robots(self.auth.groups());
-        let (keyframes, descriptor_dim, maps, verdicts) = {
+        let (keyframes, descriptor_dim, maps, verdicts, point) = {
             let index = self.pipeline.store().index();
+            let point = index.operating_point(self.pipeline.params(), unix_now());
             let maps = index
                 .map_counts()
                 .into_iter()
@@ -318,6 +320,7 @@ impl PlaceRecognition for PlaceRecognitionService {
                 index.dim() as u32,
                 maps,
                 index.verdicts().len() as u64,
+                point,
             )
         };
         Ok(Response::new(proto::StatsResponse {
@@ -329,6 +332,13 @@ impl PlaceRecognition for PlaceRecognitionService {
             server_version: env!("CARGO_PKG_VERSION").into(),
             log_position: self.pipeline.log_position(),
             verdicts,
+            operating_point: Some(proto::OperatingPoint {
+                threshold: point.threshold,
+                configured_threshold: self.pipeline.params().threshold(),
+                estimated_precision: point.estimated_precision,
+                configured_precision: point.base_precision,
+                verdicts: point.verdicts as u64,
+            }),
         }))
     }
 }

@@ -61,8 +61,6 @@ pub struct Limits {
     pub scene_top_k: usize,
     /// Default minimum frame gap.
     pub min_frame_gap: u64,
-    /// Default selection threshold.
-    pub threshold: f32,
     /// Default number of candidates.
     pub top_n: usize,
 }
@@ -627,10 +625,10 @@ pub fn query(mut r: proto::QueryRequest, limits: &Limits) -> Result<QuerySpec> {
         }
         Some(n) => n as usize,
     };
-    let threshold = match r.threshold {
-        None => limits.threshold,
-        Some(t) => unit_interval("threshold", t)?,
-    };
+    let threshold = r
+        .threshold
+        .map(|t| unit_interval("threshold", t))
+        .transpose()?;
     Ok(QuerySpec {
         session,
         map_id: r.map_id,

@@ -15,7 +15,7 @@ use std::net::SocketAddr;
 use std::sync::LazyLock;
 
 use prometheus::{
-    Encoder, GaugeVec, HistogramOpts, HistogramVec, IntCounter, IntCounterVec, IntGauge,
+    Encoder, Gauge, GaugeVec, HistogramOpts, HistogramVec, IntCounter, IntCounterVec, IntGauge,
     IntGaugeVec, Opts, Registry, TextEncoder,
 };
 
@@ -190,6 +190,20 @@ pub static CANDIDATE_SCORE: LazyLock<HistogramVec> = LazyLock::new(|| {
             )
             .buckets(prometheus::linear_buckets(0.5, 0.05, 10).expect("valid buckets")),
             &["kind"],
+        )
+        .unwrap(),
+    )
+});
+
+/// The store's operating threshold as of the last answered query: the
+/// configured one, or the one its verdicts adapted
+/// (`vpr.verdicts.adapt_threshold`). A rise says the candidates sent to
+/// verification were falling short of the target precision.
+pub static OPERATING_THRESHOLD: LazyLock<Gauge> = LazyLock::new(|| {
+    register(
+        Gauge::new(
+            "humem_operating_threshold",
+            "the threshold queries naming none were answered at, as of the last answered query (configured, or adapted from verdicts)",
         )
         .unwrap(),
     )
@@ -437,6 +451,7 @@ pub fn init() {
     LazyLock::force(&KEYFRAMES_INSERTED);
     LazyLock::force(&CANDIDATES);
     LazyLock::force(&CANDIDATE_SCORE);
+    LazyLock::force(&OPERATING_THRESHOLD);
     LazyLock::force(&KEYFRAMES);
     LazyLock::force(&STORE_BYTES);
     cluster::init();

@@ -182,7 +182,12 @@ impl Pipeline {
         self.replica.as_ref().map_or(0, Replica::applied)
     }
 
-    /// The store, for read-only requests (statistics).
+    /// The VPR settings queries are ranked with.
+    pub fn params(&self) -> &VprParams {
+        &self.params
+    }
+
+    /// The store that queries read and writes go to.
     pub fn store(&self) -> &Store {
         &self.store
     }
@@ -282,6 +287,7 @@ impl Pipeline {
                 .with_label_values(&[kind])
                 .observe(f64::from(c.score));
         }
+        metrics::OPERATING_THRESHOLD.set(f64::from(outcome.operating_point.threshold));
         tracing::debug!(
             candidates = outcome.candidates.len(),
             eligible = outcome.eligible,

@@ -13,8 +13,9 @@ use humem_core::index::Index;
 use humem_core::keyframe::{Features, KeyframeKey, ObjectObservation, Pose, SessionKey};
 use humem_core::vpr::feedback::{self, Place, PlacedVerdict};
 use humem_core::vpr::{
-    self, Contradiction, KeyframeMemory, MissingObject, NullModel, ObjectMatch, QueryContext,
-    QueryObservation, ScalHit, Scope, TextConflict, TextMatch, VerdictEffect, VprParams,
+    self, Contradiction, KeyframeMemory, MissingObject, NullModel, ObjectMatch, OperatingPoint,
+    QueryContext, QueryObservation, ScalHit, Scope, TextConflict, TextMatch, VerdictEffect,
+    VprParams,
 };
 
 /// Why a query cannot be answered.
@@ -128,8 +129,12 @@ pub struct QueryOutcome {
     pub used_predecessors: Vec<u64>,
     /// Time per stage.
     pub timings: Vec<(&'static str, Duration)>,
-    /// The threshold applied to the candidates' scores.
+    /// The threshold applied to the candidates' scores: the request's, or
+    /// else the store's operating point.
     pub threshold: f32,
+    /// The store's operating point when the query ran (what a request
+    /// naming no threshold gets).
+    pub operating_point: OperatingPoint,
 }
 
 /// Runs a validated query against the index: what the query shows, its
@@ -162,15 +167,12 @@ pub fn run(
         eligible: eligible_count,
     } = vpr::rank_timed(params, spec.layers, &query, index, &eligible);
     let clock = std::time::Instant::now();
-    apply_verdicts(
-        index,
-        params,
-        stored_row,
-        &mut ranked,
-        humem_core::verdict::unix_now(),
-    );
+    let now = humem_core::verdict::unix_now();
+    apply_verdicts(index, params, stored_row, &mut ranked, now);
+    let operating_point = index.operating_point(params, now);
+    let threshold = spec.threshold.unwrap_or(operating_point.threshold);
     timings.fusion += clock.elapsed();
-    let candidates = vpr::select(ranked, spec.threshold, spec.top_n)
+    let candidates = vpr::select(ranked, threshold, spec.top_n)
         .into_iter()
         .map(|r| candidate(index, &current, r))
         .collect();
@@ -182,7 +184,8 @@ pub fn run(
             .map(|&row| index.meta(row).key.keyframe_id)
             .collect(),
         timings: timings.stages().to_vec(),
-        threshold: spec.threshold,
+        threshold,
+        operating_point,
     })
 }
 

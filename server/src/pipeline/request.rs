@@ -63,8 +63,9 @@ pub struct QuerySpec {
     /// Most candidates returned, at least 1.
     pub top_n: usize,
     /// Candidates must score strictly above this, in [0, 1]; 0 keeps every
-    /// ranked candidate.
-    pub threshold: f32,
+    /// ranked candidate; None: the store's operating point
+    /// ([`humem_core::index::Index::operating_point`]).
+    pub threshold: Option<f32>,
     /// The scoring layers used.
     pub layers: Layers,
     /// What the query is for.

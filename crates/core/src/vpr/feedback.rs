@@ -69,6 +69,21 @@ pub struct VerdictParams {
     pub place_graph: bool,
     /// Half-life of a verdict's weight, in hours.
     pub half_life_hours: f64,
+    /// Whether the store's threshold adapts to hold `target_precision`
+    /// of the candidates sent to verification
+    /// ([`super::operating_point`]); off: the configured threshold always.
+    pub adapt_threshold: bool,
+    /// The candidate precision the adapted threshold holds, in (0, 1].
+    pub target_precision: f64,
+    /// `m`, the share of true places the SLAM system's geometry rejects
+    /// all the same, in [0, 1): those rejections are not held against
+    /// the threshold.
+    pub geometry_miss_rate: f64,
+    /// Scored verdicts above the configured threshold needed before it
+    /// adapts.
+    pub min_verdicts: usize,
+    /// The most the adapted threshold rises above the configured one.
+    pub max_threshold_raise: f32,
 }
 
 impl Default for VerdictParams {
@@ -80,6 +95,11 @@ impl Default for VerdictParams {
             support_gain: 0.5,
             place_graph: false,
             half_life_hours: 24.0 * 30.0,
+            adapt_threshold: true,
+            target_precision: 0.98,
+            geometry_miss_rate: 0.1,
+            min_verdicts: 30,
+            max_threshold_raise: 0.15,
         }
     }
 }
@@ -99,7 +119,27 @@ impl VerdictParams {
         if !(self.half_life_hours.is_finite() && self.half_life_hours > 0.0) {
             return Err("verdicts.half_life_hours must be a finite number > 0".into());
         }
+        if !(self.target_precision > 0.0 && self.target_precision <= 1.0) {
+            return Err("verdicts.target_precision must be in (0, 1]".into());
+        }
+        if !(0.0..1.0).contains(&self.geometry_miss_rate) {
+            return Err("verdicts.geometry_miss_rate must be in [0, 1)".into());
+        }
+        if !(0.0..=1.0).contains(&self.max_threshold_raise) {
+            return Err("verdicts.max_threshold_raise must be in [0, 1]".into());
+        }
         Ok(())
+    }
+
+    /// The adaptation rule around the configured threshold `base`.
+    pub fn rule(&self, base: f32) -> super::operating_point::Rule {
+        super::operating_point::Rule {
+            base,
+            target_precision: self.target_precision,
+            geometry_miss_rate: self.geometry_miss_rate,
+            min_verdicts: self.min_verdicts,
+            max_raise: self.max_threshold_raise,
+        }
     }
 
     /// `w = 0.5^(age / half_life)` of a verdict reported at `reported_at`,

@@ -40,6 +40,7 @@ pub mod kernels;
 pub mod matrix;
 pub mod memory;
 pub mod ogtl;
+pub mod operating_point;
 pub mod osrl;
 pub mod params;
 pub mod rank;
@@ -59,6 +60,7 @@ pub use fusion::{corroboration, fuse, fuse_with_contradiction};
 pub use matrix::{dot, DescriptorMatrix};
 pub use memory::{KeyframeMemory, VecMemory};
 pub use ogtl::{ogtl, text_profile, text_profile_in, OgtlResult, TextMatch, TextProfile};
+pub use operating_point::OperatingPoint;
 pub use osrl::{object_affinity, osrl, spatial_kernel, ObjectMatch, OsrlResult};
 pub use params::{Calibration, Layers, ScanMode, TemporalMode, VprParams};
 pub use rank::{

@@ -147,6 +147,9 @@ pub enum BenchCommand {
     /// insert rate, query throughput per replica count, and (with
     /// `--failover`) writes lost while replicas and NATS nodes are killed.
     Cluster(crate::cli::cluster_bench::ClusterBench),
+    /// What stored verification verdicts add to a query's cost as they
+    /// pile up in one session, against verdicts off in the same run.
+    Verdicts(humem_eval::verdict_bench::VerdictBench),
 }
 
 #[derive(Debug, Clone, Copy, PartialEq, Eq, clap::ValueEnum)]

@@ -5,7 +5,6 @@ use super::*;
 const LIMITS: Limits = Limits {
     scene_top_k: 2,
     min_frame_gap: 100,
-    threshold: 0.7,
     top_n: 5,
 };
 
@@ -115,7 +114,7 @@ fn query_defaults_come_from_the_limits() {
     let spec = query(q.clone(), &LIMITS).unwrap();
     assert_eq!(spec.min_frame_gap, 100);
     assert_eq!(spec.top_n, 5);
-    assert_eq!(spec.threshold, 0.7);
+    assert_eq!(spec.threshold, None);
     assert_eq!(spec.layers, Layers::FULL);
     assert_eq!(spec.scope, Scope::AllMaps);
     assert_eq!(spec.kind, QueryKind::LoopClosure);
