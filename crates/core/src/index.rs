@@ -480,6 +480,25 @@ impl Index {
         Some(self.place_of_row(self.row_of(key)?))
     }
 
+    /// The stored keyframes at `place`'s place: those of its map at most
+    /// `radius` from it (itself among them when stored). One pass over
+    /// that map's rows, a few flops each: far less than the query's scan
+    /// of the same rows.
+    pub fn keyframes_near<'a>(&'a self, place: &Place, radius: f64) -> Vec<&'a KeyframeKey> {
+        let map = MapKey {
+            session: place.key.session(),
+            map_id: place.map_id,
+        };
+        self.tracks
+            .get(&map)
+            .into_iter()
+            .flat_map(|track| track.values())
+            .map(|&row| self.place_of_row(row))
+            .filter(|other| place.near(other, radius))
+            .map(|other| other.key)
+            .collect()
+    }
+
     /// Where the keyframe of `row` is. Panics if `row` is out of range.
     pub fn place_of_row(&self, row: usize) -> Place<'_> {
         let meta = &self.rows[row];

@@ -178,10 +178,29 @@ impl VerdictBook {
         self.verdicts.values()
     }
 
-    /// The verdicts naming a keyframe of any of `sessions`, each once.
-    pub fn touching<'a>(
+    /// The verdicts naming any of `keyframes`, each once.
+    pub fn naming<'a, 'k>(
         &'a self,
-        sessions: impl IntoIterator<Item = &'a SessionKey>,
+        keyframes: impl IntoIterator<Item = &'k KeyframeKey>,
+    ) -> Vec<&'a Verdict> {
+        let mut seen = HashSet::new();
+        let mut out = Vec::new();
+        for keyframe in keyframes {
+            for key in self.by_keyframe.get(keyframe).into_iter().flatten() {
+                if seen.insert(key) {
+                    if let Some(v) = self.verdicts.get(key) {
+                        out.push(v);
+                    }
+                }
+            }
+        }
+        out
+    }
+
+    /// The verdicts naming a keyframe of any of `sessions`, each once.
+    pub fn touching<'a, 's>(
+        &'a self,
+        sessions: impl IntoIterator<Item = &'s SessionKey>,
     ) -> Vec<&'a Verdict> {
         let mut seen = HashSet::new();
         let mut out = Vec::new();

@@ -191,8 +191,17 @@ pub fn run(
 
 /// Changes the ranked candidates' scores by SLAM's stored verdicts
 /// ([`vpr::feedback`]) and puts them back in order. The query's place is
-/// its stored keyframe's, when it is one; the verdicts looked at are those
-/// naming a keyframe of the query's or a candidate's session.
+/// its stored keyframe's, when it is one.
+///
+/// Which verdicts are looked at: for a query with a place and the place
+/// graph off (the default), only a verdict with one end at the query's
+/// place can apply to any of its candidates (the penalty and the own
+/// support link the query's place with a candidate's), so only the
+/// verdicts naming a keyframe near it are fetched ([`Index::keyframes_near`]):
+/// the cost follows the verdicts at this place, not every verdict of a
+/// session that has driven for months. Otherwise (the place graph links
+/// candidates' places with each other), those naming a keyframe of the
+/// query's or a candidate's session.
 pub fn apply_verdicts(
     index: &Index,
     params: &VprParams,
@@ -206,18 +215,8 @@ pub fn apply_verdicts(
     }
     let query = stored_row.map(|row| index.place_of_row(row));
     let candidates: Vec<Place> = ranked.iter().map(|r| index.place_of_row(r.row)).collect();
-    let sessions: Vec<SessionKey> = query
-        .iter()
-        .chain(&candidates)
-        .map(|p| p.key.session())
-        .collect::<std::collections::BTreeSet<_>>()
-        .into_iter()
-        .collect();
-    let placed: Vec<PlacedVerdict> = book
-        .touching(&sessions)
-        .into_iter()
-        .filter_map(|v| PlacedVerdict::new(v, &params.verdicts, now, |k| index.place(k)))
-        .collect();
+    let near_only = query.is_some() && !params.verdicts.place_graph;
+    let placed = placed_verdicts(index, params, query.as_ref(), &candidates, near_only, now);
     if placed.is_empty() {
         return;
     }
@@ -234,6 +233,35 @@ pub fn apply_verdicts(
         r.verdict = effect;
     }
     vpr::sort_ranked(ranked);
+}
+
+/// The verdicts a query looks at, placed: those naming a keyframe near the
+/// query's place (`near_only`, which needs a `query`), or else those naming
+/// a keyframe of the query's or a candidate's session.
+fn placed_verdicts<'a>(
+    index: &'a Index,
+    params: &VprParams,
+    query: Option<&Place>,
+    candidates: &[Place],
+    near_only: bool,
+    now: f64,
+) -> Vec<PlacedVerdict<'a>> {
+    let book = index.verdicts();
+    let looked_at = match query {
+        Some(q) if near_only => book.naming(index.keyframes_near(q, params.verdicts.radius_m)),
+        _ => {
+            let sessions: std::collections::BTreeSet<SessionKey> = query
+                .into_iter()
+                .chain(candidates)
+                .map(|p| p.key.session())
+                .collect();
+            book.touching(&sessions)
+        }
+    };
+    looked_at
+        .into_iter()
+        .filter_map(|v| PlacedVerdict::new(v, &params.verdicts, now, |k| index.place(k)))
+        .collect()
 }
 
 /// What the query shows: the features it sent, or else those of the stored
@@ -416,4 +444,103 @@ fn candidate(index: &Index, current: &Features, r: vpr::RankedCandidate) -> Cand
 /// String `text` of object `object`, as evidence names it.
 fn text_of(objects: &[ObjectObservation], object: usize, text: usize) -> String {
     objects[object].texts[text].text.clone()
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use humem_core::keyframe::{Features, SemanticKeyframe};
+    use humem_core::synthetic::Rng;
+    use humem_core::verdict::{Verdict, VerificationKind};
+
+    /// Two sessions driving laps of a 60 m line (two maps in the first),
+    /// and a thousand verdicts on random pairs of them.
+    fn index_with_verdicts() -> Index {
+        let mut index = Index::new(4);
+        let key = |session: &str, id: u64| {
+            SessionKey {
+                robot_id: "r".into(),
+                session_id: session.into(),
+            }
+            .keyframe(id)
+        };
+        let mut keys = Vec::new();
+        for (session, n) in [("a", 240u64), ("b", 120)] {
+            for id in 0..n {
+                let k = key(session, id);
+                index.upsert(SemanticKeyframe {
+                    key: k.clone(),
+                    frame_id: id,
+                    timestamp: id as f64,
+                    map_id: u64::from(session == "a" && id >= 200),
+                    pose: Pose {
+                        translation: [(id % 60) as f64, 0.0, 0.0],
+                        ..Pose::default()
+                    },
+                    features: Features {
+                        descriptor: vec![0.5; 4],
+                        ..Features::default()
+                    },
+                });
+                keys.push(k);
+            }
+        }
+        let mut rng = Rng::new(3);
+        for i in 0..1000 {
+            let q = &keys[rng.next() as usize % keys.len()];
+            let c = &keys[rng.next() as usize % keys.len()];
+            index.record_verdict(Verdict {
+                query: q.clone(),
+                candidate: c.clone(),
+                kind: VerificationKind::Loop,
+                accepted: rng.next().is_multiple_of(3),
+                relative: None,
+                score: Some(0.5),
+                inliers: 0,
+                reported_at: f64::from(i),
+            });
+        }
+        index
+    }
+
+    /// Without the place graph, the verdicts near the query's place are
+    /// all that apply: the effects equal those over the sessions' verdicts,
+    /// for every query and a spread of candidates.
+    #[test]
+    fn verdicts_near_the_query_are_all_that_apply() {
+        let index = index_with_verdicts();
+        let params = VprParams::default();
+        let mut rng = Rng::new(9);
+        let mut touched = 0;
+        for q_row in 0..index.len() {
+            let query = index.place_of_row(q_row);
+            let candidates: Vec<Place> = (0..8)
+                .map(|_| index.place_of_row(rng.next() as usize % index.len()))
+                .collect();
+            let effects = |near_only| {
+                let placed =
+                    placed_verdicts(&index, &params, Some(&query), &candidates, near_only, 1e3);
+                let mut scores = vec![0.5f32; candidates.len()];
+                let effects = feedback::apply(
+                    &params.verdicts,
+                    Some(&query),
+                    &candidates,
+                    &mut scores,
+                    &placed,
+                );
+                (effects, scores)
+            };
+            let near = effects(true);
+            assert_eq!(near, effects(false), "query row {q_row}");
+            touched += near
+                .0
+                .iter()
+                .filter(|e| e.rejections + e.acceptances > 0)
+                .count();
+        }
+        assert!(
+            touched > 100,
+            "the verdicts must apply somewhere: {touched}"
+        );
+    }
 }
