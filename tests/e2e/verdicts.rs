@@ -209,7 +209,11 @@ fn scored(
 #[tokio::test(flavor = "multi_thread")]
 async fn rejections_raise_the_operating_point_and_it_holds_across_restarts() {
     let dir = tempfile::tempdir().unwrap();
-    let adapting = ["HUMEM_VPR__VERDICTS__MIN_VERDICTS=4"];
+    let adapting = [
+        "HUMEM_VPR__VERDICTS__ADAPT_THRESHOLD=true",
+        "HUMEM_VPR__VERDICTS__TARGET_PRECISION=0.98",
+        "HUMEM_VPR__VERDICTS__MIN_VERDICTS=4",
+    ];
     let server = Server::start_with(dir.path(), &adapting);
     let mut client = server.client().await;
     let mut world = World::new(60, 11);
@@ -283,14 +287,9 @@ async fn rejections_raise_the_operating_point_and_it_holds_across_restarts() {
     expect_adapted(&server.stats().await.operating_point.unwrap());
     server.kill();
 
-    // Turned off, the configured threshold serves, verdicts or not.
-    let server = Server::start_with(
-        dir.path(),
-        &[
-            "HUMEM_VPR__VERDICTS__MIN_VERDICTS=4",
-            "HUMEM_VPR__VERDICTS__ADAPT_THRESHOLD=false",
-        ],
-    );
+    // Turned off (the default), the configured threshold serves, verdicts
+    // or not.
+    let server = Server::start_with(dir.path(), &["HUMEM_VPR__VERDICTS__MIN_VERDICTS=4"]);
     let point = server.stats().await.operating_point.unwrap();
     assert_eq!(point.threshold, 0.36);
     assert_eq!(point.estimated_precision, None);

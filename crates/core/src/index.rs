@@ -18,7 +18,7 @@ use crate::keyframe::{
     KeyframeKey, ObjectObservation, Pose, SceneClass, SemanticKeyframe, SessionKey,
 };
 use crate::row_ids::{Eligibility, Interner, RowIds};
-use crate::verdict::{Verdict, VerdictBook};
+use crate::verdict::{Verdict, VerdictBook, VerificationKind};
 use crate::vpr::appearance::AppearanceMatrix;
 use crate::vpr::eligibility::QueryContext;
 use crate::vpr::feedback::{Place, VerdictParams};
@@ -448,6 +448,7 @@ impl Index {
         let samples: Vec<Sample> = self
             .verdicts
             .iter()
+            .filter(|v| v.kind != VerificationKind::Relocalisation)
             .filter_map(|v| {
                 Some(Sample {
                     score: v.score?,

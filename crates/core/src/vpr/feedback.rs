@@ -35,6 +35,17 @@
 //!   threshold by its neighbours' verdicts alone (measured: an additive
 //!   support sent more false candidates than it recovered true ones).
 //!
+//! A rejected *relocalisation* counts for nothing. The frame that asked
+//! was lost (motion blur, a fast turn, too little texture), so a failed
+//! PnP says more about the frame than about the candidate, and a lost
+//! frame is no keyframe: the plugin reports it against the newest
+//! keyframe of the map, which is not where the frame was. Counted, they
+//! penalised true places: in the ORB-SLAM3 harness every lost frame sent
+//! ten rejections of the keyframes right behind it (600 to 1,200 a run),
+//! which then took score off the true loops of later laps at those places.
+//! An accepted relocalisation still counts: the candidate was where the
+//! robot was.
+//!
 //! A query with no stored pose (a relocalisation from an image) has no
 //! place: only the place graph applies to it. The verdicts looked at are
 //! those naming a keyframe of the query's or a candidate's session (the
@@ -43,7 +54,7 @@
 use serde::{Deserialize, Serialize};
 
 use crate::keyframe::KeyframeKey;
-use crate::verdict::Verdict;
+use crate::verdict::{Verdict, VerificationKind};
 
 /// How verdicts change rankings (`[vpr.verdicts]`).
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
@@ -72,8 +83,18 @@ pub struct VerdictParams {
     /// Whether the store's threshold adapts to hold `target_precision`
     /// of the candidates sent to verification
     /// ([`super::operating_point`]); off: the configured threshold always.
+    /// Off by default: the estimate reads a rejection as "another place"
+    /// unless geometry's miss rate explains it, and ORB-SLAM3 rejects most
+    /// candidates it is sent, true places included (README, "Verdicts":
+    /// the harness measured it), so with its verdicts the threshold would
+    /// rise to its bound and lose true loops.
     pub adapt_threshold: bool,
     /// The candidate precision the adapted threshold holds, in (0, 1].
+    /// 0.90: at the configured threshold every dev set's candidates are
+    /// at least about that precise, so on them it changes nothing (0.95
+    /// and 0.98 cost recall on real images and under glare; README,
+    /// "Verdicts replayed"), and it raises the threshold where candidates
+    /// fall well below it.
     pub target_precision: f64,
     /// `m`, the share of true places the SLAM system's geometry rejects
     /// all the same, in [0, 1): those rejections are not held against
@@ -95,8 +116,8 @@ impl Default for VerdictParams {
             support_gain: 0.5,
             place_graph: false,
             half_life_hours: 24.0 * 30.0,
-            adapt_threshold: true,
-            target_precision: 0.98,
+            adapt_threshold: false,
+            target_precision: 0.9,
             geometry_miss_rate: 0.1,
             min_verdicts: 30,
             max_threshold_raise: 0.15,
@@ -204,6 +225,9 @@ impl<'a> PlacedVerdict<'a> {
         now: f64,
         place_of: impl Fn(&'a KeyframeKey) -> Option<Place<'a>>,
     ) -> Option<PlacedVerdict<'a>> {
+        if !verdict.accepted && verdict.kind == VerificationKind::Relocalisation {
+            return None; // see the module doc
+        }
         Some(PlacedVerdict {
             query: place_of(&verdict.query)?,
             candidate: place_of(&verdict.candidate)?,
@@ -499,6 +523,30 @@ mod tests {
             &verdicts,
         );
         assert_eq!(scores, [0.3, 0.4, 0.35]);
+    }
+
+    /// Rejected relocalisations are not placed (they count for nothing);
+    /// accepted ones are.
+    #[test]
+    fn rejected_relocalisations_count_for_nothing() {
+        let (q, c) = (key(1), key(2));
+        let verdict = |kind, accepted| Verdict {
+            query: q.clone(),
+            candidate: c.clone(),
+            kind,
+            accepted,
+            relative: None,
+            score: Some(0.5),
+            inliers: 0,
+            reported_at: 0.0,
+        };
+        let place_of = |k: &KeyframeKey| Some(place(if *k == q { &q } else { &c }, 0.0));
+        let params = VerdictParams::default();
+        let placed = |v: &Verdict| PlacedVerdict::new(v, &params, 0.0, |k| place_of(k)).is_some();
+        assert!(!placed(&verdict(VerificationKind::Relocalisation, false)));
+        assert!(placed(&verdict(VerificationKind::Relocalisation, true)));
+        assert!(placed(&verdict(VerificationKind::Loop, false)));
+        assert!(placed(&verdict(VerificationKind::Merge, false)));
     }
 
     #[test]

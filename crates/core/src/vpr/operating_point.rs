@@ -3,9 +3,11 @@
 //! geometric verification keep a configured precision on ground the
 //! default threshold was never tuned on.
 //!
-//! Every verdict that carries the score HuMem gave its candidate
-//! ([`crate::verdict::Verdict::score`]) is one labelled sample of "what a
-//! candidate scored, and whether it was a true place". Geometry is not a
+//! Every loop or merge verdict that carries the score HuMem gave its
+//! candidate ([`crate::verdict::Verdict::score`]) is one labelled sample of
+//! "what a candidate scored, and whether it was a true place"
+//! (relocalisations are left out: a lost frame's failed PnP says more about
+//! the frame than the candidate, see [`super::feedback`]). Geometry is not a
 //! perfect label: it also rejects true places (too few matches under
 //! appearance change), with a probability `m`, the configured
 //! `geometry_miss_rate`. So for a candidate threshold `τ`, with `w_i` each
