@@ -540,9 +540,10 @@ mod tests {
             inliers: 0,
             reported_at: 0.0,
         };
-        let place_of = |k: &KeyframeKey| Some(place(if *k == q { &q } else { &c }, 0.0));
-        let params = VerdictParams::default();
-        let placed = |v: &Verdict| PlacedVerdict::new(v, &params, 0.0, |k| place_of(k)).is_some();
+        fn placed(v: &Verdict) -> bool {
+            let params = VerdictParams::default();
+            PlacedVerdict::new(v, &params, 0.0, |k| Some(place(k, 0.0))).is_some()
+        }
         assert!(!placed(&verdict(VerificationKind::Relocalisation, false)));
         assert!(placed(&verdict(VerificationKind::Relocalisation, true)));
         assert!(placed(&verdict(VerificationKind::Loop, false)));
