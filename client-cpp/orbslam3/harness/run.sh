@@ -41,6 +41,8 @@ usage: $0 --orbslam3 DIR --pangolin PREFIX --dataset DIR [options]
   --server-env "K=V ..."   environment for humem serve (default: server-env.sh WIDTH HEIGHT
                       of the camera: the OCR detector's long side = the camera's long side,
                       rounded down to a multiple of 32)
+  --humem-setting "HuMem.Key: value"   a further plugin setting for the HuMem runs (repeatable),
+                      e.g. "HuMem.VerifyBelowScore: 0.5"
   --realtime          feed strictly by the clock; by default a frame also waits until Local
                       Mapping has taken the queued keyframes (a loaded machine cannot keep up)
   --build-only        build (and train the vocabulary), run nothing
@@ -52,7 +54,7 @@ EOF
 
 orbslam3="" pangolin="" dataset="" humem="$repo/target/release/humem" runs=3 modes="humem dbow2"
 work="${HOME}/.cache/humem-orbslam3" fps=10 vocab="" vocab_images="" vocab_max=400 vocab_k=10 vocab_l=5
-server_env="" build_only=0 evaluate_only="" realtime=0
+server_env="" build_only=0 evaluate_only="" realtime=0 humem_settings=()
 while [ $# -gt 0 ]; do
     case "$1" in
         --orbslam3) orbslam3=$2; shift 2 ;;
@@ -71,6 +73,9 @@ while [ $# -gt 0 ]; do
         --server-env) server_env=$2; shift 2 ;;
         --build-only) build_only=1; shift ;;
         --realtime) realtime=1; shift ;;
+        --humem-setting)
+            case "$2" in HuMem.*:*) ;; *) echo "run.sh: --humem-setting wants \"HuMem.Key: value\", got: $2" >&2; exit 2 ;; esac
+            humem_settings+=("$2"); shift 2 ;;
         --evaluate-only) evaluate_only=$2; shift 2 ;;
         -h|--help) usage; exit 0 ;;
         *) echo "run.sh: unknown argument $1" >&2; usage >&2; exit 2 ;;
@@ -288,6 +293,9 @@ for i in $(seq 1 "$runs"); do
             done
             printf 'HuMem.Enabled: 1\nHuMem.Address: "127.0.0.1:%s"\nHuMem.RobotId: "orbslam3"\nHuMem.DBoW2Fallback: 0\nHuMem.Verbose: 1\n' \
                 "$port" >>"$rd/settings.yaml"
+            for setting in "${humem_settings[@]}"; do
+                printf '%s\n' "$setting" >>"$rd/settings.yaml"
+            done
         else
             printf 'HuMem.Enabled: 0\n' >>"$rd/settings.yaml"
         fi
