@@ -122,7 +122,7 @@ HuMemSettings::HuMemSettings()
     : enabled(true), robotId("orbslam3"), resetSessionOnStart(false), queryDeadlineMs(500),
       queryTimeoutMs(5000), imageCacheFrames(64), topN(0), relocTopN(10), threshold(-1.f), relocThreshold(0.f),
       minFrameGap(-1), relocMinFrameGap(0), relocMaxAgeFrames(30), minMapKeyFrames(12),
-      dbow2Fallback(false), poseUpdates(true), reportVerdicts(true), verifyBelowScore(0.f), verbose(1)
+      dbow2Fallback(false), poseUpdates(true), reportVerdicts(true), verifyBelowScore(0.5f), verbose(1)
 {
 }
 

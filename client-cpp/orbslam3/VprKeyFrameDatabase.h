@@ -89,7 +89,7 @@ struct HuMemSettings
     bool dbow2Fallback;           // HuMem.DBoW2Fallback: DBoW2 when HuMem has no answer (0)
     bool poseUpdates;             // HuMem.PoseUpdates: UpdatePoses after loop/GBA/merge (1)
     bool reportVerdicts;          // HuMem.ReportVerdicts: ReportVerification of ORB-SLAM3's verdicts (1)
-    float verifyBelowScore;       // HuMem.VerifyBelowScore: candidates scored below need a 4th coincidence (0: off)
+    float verifyBelowScore;       // HuMem.VerifyBelowScore: candidates scored below need a 4th coincidence (0: off; default 0.5)
     int verbose;                  // HuMem.Verbose: 0 warnings, 1 info (default), 2 debug
 
     HuMemSettings();
