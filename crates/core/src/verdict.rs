@@ -183,18 +183,7 @@ impl VerdictBook {
         &'a self,
         keyframes: impl IntoIterator<Item = &'k KeyframeKey>,
     ) -> Vec<&'a Verdict> {
-        let mut seen = HashSet::new();
-        let mut out = Vec::new();
-        for keyframe in keyframes {
-            for key in self.by_keyframe.get(keyframe).into_iter().flatten() {
-                if seen.insert(key) {
-                    if let Some(v) = self.verdicts.get(key) {
-                        out.push(v);
-                    }
-                }
-            }
-        }
-        out
+        self.each_once(keyframes.into_iter().map(|k| self.by_keyframe.get(k)))
     }
 
     /// The verdicts naming a keyframe of any of `sessions`, each once.
@@ -202,18 +191,20 @@ impl VerdictBook {
         &'a self,
         sessions: impl IntoIterator<Item = &'s SessionKey>,
     ) -> Vec<&'a Verdict> {
+        self.each_once(sessions.into_iter().map(|s| self.by_session.get(s)))
+    }
+
+    /// The verdicts of the key sets of a lookup table, each once.
+    fn each_once<'a>(
+        &'a self,
+        sets: impl Iterator<Item = Option<&'a HashSet<VerdictKey>>>,
+    ) -> Vec<&'a Verdict> {
         let mut seen = HashSet::new();
-        let mut out = Vec::new();
-        for session in sessions {
-            for key in self.by_session.get(session).into_iter().flatten() {
-                if seen.insert(key) {
-                    if let Some(v) = self.verdicts.get(key) {
-                        out.push(v);
-                    }
-                }
-            }
-        }
-        out
+        sets.flatten()
+            .flatten()
+            .filter(|key| seen.insert(*key))
+            .filter_map(|key| self.verdicts.get(key))
+            .collect()
     }
 }
 

@@ -200,7 +200,7 @@ pub(crate) fn timed<T>(f: impl FnOnce() -> T) -> (Duration, T) {
 
 /// The median of `samples` in milliseconds (the harness's one latency
 /// summary, [`crate::metrics::latency`]).
-fn median_ms(samples: &[Duration]) -> f64 {
+pub(crate) fn median_ms(samples: &[Duration]) -> f64 {
     crate::metrics::latency(samples).median_ms
 }
 

@@ -16,8 +16,6 @@
 //! ([`humem_core::index::Index::operating_point`], recomputed when the
 //! verdicts change and once a minute) is timed on its own.
 
-use std::time::Duration;
-
 use anyhow::ensure;
 
 use humem_core::index::{Index, OPERATING_POINT_REFRESH_S};
@@ -29,7 +27,7 @@ use humem_server::config::Config;
 use humem_server::pipeline::query;
 use humem_server::pipeline::request::{QueryKind, QuerySpec};
 
-use super::scan_bench::timed;
+use super::scan_bench::{median_ms, timed};
 
 /// Options of `humem bench verdicts`.
 #[derive(Debug, Clone, clap::Args)]
@@ -126,11 +124,6 @@ fn verdict(rng: &mut Rng, keyframes: usize, lap: usize) -> Verdict {
     }
 }
 
-fn median_ms(samples: &mut [Duration]) -> f64 {
-    samples.sort();
-    samples[samples.len() / 2].as_secs_f64() * 1e3
-}
-
 /// Runs the benchmark and prints the table.
 pub fn verdicts(config: Config, args: VerdictBench) -> anyhow::Result<()> {
     ensure!(args.queries > 0, "--queries must be at least 1");
@@ -186,7 +179,7 @@ pub fn verdicts(config: Config, args: VerdictBench) -> anyhow::Result<()> {
         // The operating point's estimate, as when the verdicts change.
         let later = unix_now() + 2.0 * OPERATING_POINT_REFRESH_S;
         let (estimate, point) = timed(|| index.operating_point(&on, later));
-        let (without, with) = (median_ms(&mut without), median_ms(&mut with));
+        let (without, with) = (median_ms(&without), median_ms(&with));
         rows.push(format!(
             "| {} | {without:.2} | {with:.2} | {:.2} | {:.2} | {:.2} | {:.1} |",
             index.verdicts().len(),

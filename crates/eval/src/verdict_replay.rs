@@ -452,11 +452,12 @@ pub(crate) async fn replay_pass<S: ReplayStream>(
         let asked = stream.ask(q, pairs, gap).await?;
         // Without verdicts, the configured threshold: a store's adapted
         // one is the verdicts' doing.
-        let (ranked, threshold) = if report {
-            (asked.ranked, asked.threshold)
+        let threshold = if report {
+            asked.threshold
         } else {
-            (asked.ranked, point.threshold)
+            point.threshold
         };
+        let ranked = asked.ranked;
         let matches = dataset.matches.get(&q);
         let is_true = |id: u64| matches.is_some_and(|m| m.contains(&(id as usize)));
         let group = groups.entry(visit_of(matches, gap)).or_default();
