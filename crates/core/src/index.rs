@@ -164,6 +164,9 @@ pub struct Index {
     /// The operating point last estimated from `verdicts`
     /// ([`Index::operating_point`]); dropped when they change.
     operating_point: Mutex<Option<CachedPoint>>,
+    /// Each map's keyframe spacing once computed ([`Index::map_spacing`]);
+    /// a map's entry is dropped when its track or a pose in it changes.
+    spacings: Mutex<HashMap<MapKey, f64>>,
 }
 
 /// An operating point and what it was estimated with.
@@ -197,6 +200,7 @@ impl Index {
             text_df: HashMap::new(),
             verdicts: VerdictBook::new(),
             operating_point: Mutex::new(None),
+            spacings: Mutex::new(HashMap::new()),
         }
     }
 
@@ -485,19 +489,77 @@ impl Index {
     /// `radius` from it (itself among them when stored). One pass over
     /// that map's rows, a few flops each: far less than the query's scan
     /// of the same rows.
-    pub fn keyframes_near<'a>(&'a self, place: &Place, radius: f64) -> Vec<&'a KeyframeKey> {
+    pub fn keyframes_near<'a>(
+        &'a self,
+        place: &Place,
+        params: &VerdictParams,
+    ) -> Vec<&'a KeyframeKey> {
         let map = MapKey {
             session: place.key.session(),
             map_id: place.map_id,
         };
+        let radius = params.radius(place.spacing);
         self.tracks
             .get(&map)
             .into_iter()
             .flat_map(|track| track.values())
-            .map(|&row| self.place_of_row(row))
-            .filter(|other| place.near(other, radius))
+            .map(|&row| {
+                let meta = &self.rows[row];
+                Place {
+                    key: &meta.key,
+                    map_id: meta.map_id,
+                    position: meta.pose.translation,
+                    spacing: place.spacing,
+                }
+            })
+            .filter(|other| place.within(other, radius))
             .map(|other| other.key)
             .collect()
+    }
+
+    /// `s`, a map's keyframe spacing: the median distance between the
+    /// stored positions of its consecutive keyframes (by keyframe id); 0
+    /// for an unknown map or one of a single keyframe. The verdicts'
+    /// same-place radius is measured in it ([`vpr::feedback`]), since a
+    /// map's units need not be metres. Computed once per change of the
+    /// map (one pass over its keyframes) and cached.
+    pub fn map_spacing(&self, map: &MapKey) -> f64 {
+        let mut cache = self.spacings.lock().unwrap_or_else(PoisonError::into_inner);
+        if let Some(&spacing) = cache.get(map) {
+            return spacing;
+        }
+        let Some(track) = self.tracks.get(map) else {
+            return 0.0;
+        };
+        let positions: Vec<[f64; 3]> = track
+            .values()
+            .map(|&row| self.rows[row].pose.translation)
+            .collect();
+        let mut steps: Vec<f64> = positions
+            .windows(2)
+            .map(|w| {
+                (0..3)
+                    .map(|i| (w[1][i] - w[0][i]).powi(2))
+                    .sum::<f64>()
+                    .sqrt()
+            })
+            .collect();
+        let spacing = if steps.is_empty() {
+            0.0
+        } else {
+            let middle = steps.len() / 2;
+            *steps.select_nth_unstable_by(middle, f64::total_cmp).1
+        };
+        cache.insert(map.clone(), spacing);
+        spacing
+    }
+
+    /// Drops a map's cached spacing (its track or a pose in it changed).
+    fn forget_spacing(&mut self, map: &MapKey) {
+        self.spacings
+            .get_mut()
+            .unwrap_or_else(PoisonError::into_inner)
+            .remove(map);
     }
 
     /// Where the keyframe of `row` is. Panics if `row` is out of range.
@@ -507,6 +569,7 @@ impl Index {
             key: &meta.key,
             map_id: meta.map_id,
             position: meta.pose.translation,
+            spacing: self.map_spacing(&meta.map_key()),
         }
     }
 
@@ -553,6 +616,7 @@ impl Index {
         let Some(row) = self.row_of(key) else {
             return false;
         };
+        self.forget_spacing(&self.rows[row].map_key());
         self.rows[row].pose = pose;
         if let Some(map_id) = map_id {
             if map_id != self.rows[row].map_id {
@@ -570,6 +634,7 @@ impl Index {
     fn link(&mut self, row: usize) {
         let map = self.rows[row].map_key();
         let id = self.rows[row].key.keyframe_id;
+        self.forget_spacing(&map);
         let track = self.tracks.entry(map).or_default();
         track.insert(id, row);
         let prev = track.range(..id).next_back().map(|(_, &r)| r);
@@ -584,6 +649,7 @@ impl Index {
     fn unlink(&mut self, row: usize) {
         let map = self.rows[row].map_key();
         let id = self.rows[row].key.keyframe_id;
+        self.forget_spacing(&map);
         let prev = self.prev(row);
         let Some(track) = self.tracks.get_mut(&map) else {
             return;
@@ -781,6 +847,54 @@ mod tests {
         assert!(index.update_pose(&key, Pose::default(), Some(9)));
         check(&index);
         assert_eq!(index.len(), 15);
+    }
+
+    /// The spacing is the median step between consecutive keyframes (by
+    /// id, not insertion order) and follows inserts, pose updates, moves
+    /// to another map and removals.
+    #[test]
+    fn map_spacing_is_the_median_step_and_follows_changes() {
+        let at = |id: u64, x: f64| {
+            let mut k = kf("s", id, 0, "x");
+            k.pose.translation = [x, 0.0, 0.0];
+            k
+        };
+        let map = MapKey {
+            session: SessionKey {
+                robot_id: "r".into(),
+                session_id: "s".into(),
+            },
+            map_id: 0,
+        };
+        let key = |id: u64| KeyframeKey {
+            robot_id: "r".into(),
+            session_id: "s".into(),
+            keyframe_id: id,
+        };
+        let mut index = Index::new(0);
+        assert_eq!(index.map_spacing(&map), 0.0, "unknown map");
+        index.upsert(at(1, 0.0));
+        assert_eq!(index.map_spacing(&map), 0.0, "one keyframe");
+        // Ids 1..4 at x = 0, 1, 3, 10 (inserted out of order): steps 1, 2, 7.
+        for (id, x) in [(4, 10.0), (2, 1.0), (3, 3.0)] {
+            index.upsert(at(id, x));
+        }
+        assert_eq!(index.map_spacing(&map), 2.0);
+        assert_eq!(index.place(&key(2)).unwrap().spacing, 2.0);
+        // A corrected pose: id 4 at x = 3.5 (steps 1, 2, 0.5).
+        let mut pose = Pose::default();
+        pose.translation = [3.5, 0.0, 0.0];
+        index.update_pose(&key(4), pose, None);
+        assert_eq!(index.map_spacing(&map), 1.0);
+        // Id 3 moves to map 1: steps 1, 2.5; the median is the upper one.
+        index.update_pose(
+            &key(3),
+            index.meta(index.row_of(&key(3)).unwrap()).pose,
+            Some(1),
+        );
+        assert_eq!(index.map_spacing(&map), 2.5);
+        index.remove(&key(4));
+        assert_eq!(index.map_spacing(&map), 1.0);
     }
 
     #[test]

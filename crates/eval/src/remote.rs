@@ -303,7 +303,7 @@ impl Remote {
             threshold: params.threshold(),
             max_candidates: params.max_candidates,
         };
-        let poses = verdict_replay::replay_poses(dir, dataset)?;
+        let poses = verdict_replay::replay_poses(dir, dataset, options.pose_scale)?;
         let mut rows = Vec::new();
         for (n, (pass, report)) in [("without verdicts", false), ("with verdicts", true)]
             .into_iter()

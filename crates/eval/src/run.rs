@@ -109,6 +109,11 @@ pub struct EvalArgs {
     /// With --replay-verdicts: seed of the wrong rejections' draws.
     #[arg(long, default_value_t = 1)]
     pub replay_seed: u64,
+    /// With --replay-verdicts: scale of the stored poses, to replay a map
+    /// whose units are not metres (a monocular map: ORB-SLAM3's maps of
+    /// the town loop are about 1/37 of the metres driven).
+    #[arg(long, default_value_t = 1.0)]
+    pub replay_pose_scale: f64,
     /// With --replay-verdicts: a further pass with other verdict settings,
     /// NAME:key=value,… (keys of [vpr.verdicts]); repeatable.
     #[arg(long)]
@@ -405,6 +410,7 @@ impl LocalDatabase {
             super::verdict_replay::ReplayOptions {
                 wrong_rejections: args.wrong_rejections,
                 seed: args.replay_seed,
+                pose_scale: args.replay_pose_scale,
             },
             &args.replay_variant,
         )
@@ -680,6 +686,9 @@ pub async fn run(config: Config, args: EvalArgs) -> anyhow::Result<()> {
         if !(0.0..=1.0).contains(&args.wrong_rejections) {
             anyhow::bail!("--wrong-rejections must be in [0, 1]");
         }
+        if !(args.replay_pose_scale.is_finite() && args.replay_pose_scale > 0.0) {
+            anyhow::bail!("--replay-pose-scale must be a finite number > 0");
+        }
         let rows = match &mut backend {
             Backend::Local(local) => {
                 let (perception, database) = &**local;
@@ -699,6 +708,7 @@ pub async fn run(config: Config, args: EvalArgs) -> anyhow::Result<()> {
                         super::verdict_replay::ReplayOptions {
                             wrong_rejections: args.wrong_rejections,
                             seed: args.replay_seed,
+                            pose_scale: args.replay_pose_scale,
                         },
                     )
                     .await?

@@ -55,6 +55,8 @@ pub struct ReplayOptions {
     pub wrong_rejections: f64,
     /// Seed of the draws of those rejections.
     pub seed: u64,
+    /// Factor on every stored position (1: the data set's metres).
+    pub pose_scale: f64,
 }
 
 /// A further pass with other verdict settings (`--replay-variant
@@ -104,7 +106,8 @@ impl Variant {
             };
             match key.as_str() {
                 "enabled" => p.enabled = value.parse().map_err(|_| bad())?,
-                "radius_m" => p.radius_m = value.parse().map_err(|_| bad())?,
+                "radius_steps" => p.radius_steps = value.parse().map_err(|_| bad())?,
+                "radius_m" => p.radius_m = Some(value.parse().map_err(|_| bad())?),
                 "max_penalty" => p.max_penalty = value.parse().map_err(|_| bad())?,
                 "support_gain" => p.support_gain = value.parse().map_err(|_| bad())?,
                 "place_graph" => p.place_graph = value.parse().map_err(|_| bad())?,
@@ -117,7 +120,7 @@ impl Variant {
                     p.max_threshold_raise = value.parse().map_err(|_| bad())?
                 }
                 other => anyhow::bail!(
-                    "--replay-variant {}: no verdict setting {other:?} (enabled, radius_m, max_penalty, support_gain, place_graph, half_life_hours, adapt_threshold, target_precision, geometry_miss_rate, min_verdicts, max_threshold_raise)",
+                    "--replay-variant {}: no verdict setting {other:?} (enabled, radius_steps, radius_m, max_penalty, support_gain, place_graph, half_life_hours, adapt_threshold, target_precision, geometry_miss_rate, min_verdicts, max_threshold_raise)",
                     self.name
                 ),
             }
@@ -349,9 +352,19 @@ impl ReplayStream for LocalStream<'_> {
 pub fn replay_poses(
     dir: &std::path::Path,
     dataset: &Dataset,
+    scale: f64,
 ) -> anyhow::Result<(Vec<Pose>, Vec<Pose>)> {
     let spacing = line_spacing(dataset);
-    Ok(match dataset.kind {
+    let scaled = |poses: Vec<Pose>| -> Vec<Pose> {
+        poses
+            .into_iter()
+            .map(|mut p| {
+                p.translation = p.translation.map(|t| t * scale);
+                p
+            })
+            .collect()
+    };
+    let (references, queries) = match dataset.kind {
         Kind::Loop => {
             let p = poses_or_line(dir, "sequence", dataset.references.len(), spacing)?;
             (p.clone(), p)
@@ -360,7 +373,8 @@ pub fn replay_poses(
             poses_or_line(dir, "reference", dataset.references.len(), spacing)?,
             poses_or_line(dir, "query", dataset.queries.len(), spacing)?,
         ),
-    })
+    };
+    Ok((scaled(references), scaled(queries)))
 }
 
 /// Streams the data set in-process once without verdicts, once with the
@@ -380,7 +394,7 @@ pub async fn replay(
         threshold: params.threshold(),
         max_candidates: params.max_candidates,
     };
-    let poses = replay_poses(dir, dataset)?;
+    let poses = replay_poses(dir, dataset, options.pose_scale)?;
     let mut passes = vec![
         (
             "without verdicts".to_string(),

@@ -248,7 +248,7 @@ fn placed_verdicts<'a>(
 ) -> Vec<PlacedVerdict<'a>> {
     let book = index.verdicts();
     let looked_at = match query {
-        Some(q) if near_only => book.naming(index.keyframes_near(q, params.verdicts.radius_m)),
+        Some(q) if near_only => book.naming(index.keyframes_near(q, &params.verdicts)),
         _ => {
             let sessions: std::collections::BTreeSet<SessionKey> = query
                 .into_iter()

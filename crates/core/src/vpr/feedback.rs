@@ -4,10 +4,22 @@
 //! The SLAM system checks every candidate geometrically and reports the
 //! outcome ([`crate::verdict`]). Two places are "the same place" here when
 //! they are the same keyframe, or keyframes of the same map (robot, session,
-//! map id) whose stored positions are at most `radius_m` apart: the map's
-//! own poses, kept current by pose updates after loop correction. A verdict
+//! map id) whose stored positions are at most `r` apart: the map's own
+//! poses, kept current by pose updates after loop correction. A verdict
 //! on the pair (a, b) *applies* to a query q and a candidate c when q is at
 //! a's place and c at b's, or the other way round.
+//!
+//! The radius is measured in the map's own keyframe spacing:
+//! `r = radius_steps × s`, with `s` the median distance between
+//! consecutive keyframes (by keyframe id) of the map. A map's units are
+//! not always metres: a monocular map has an arbitrary scale (ORB-SLAM3's
+//! first monocular map of the town loop is about 3 units across for about
+//! 190 m driven), so a radius in metres made every keyframe of such a map
+//! one place, and one rejection penalised every candidate of the map
+//! (measured in the harness: true places at 0.5–0.64 fell to 0.17–0.27).
+//! `s` scales with the map, so the same places are "near" at any scale.
+//! `radius_m` sets a radius in map units instead, for maps known to be
+//! metric.
 //!
 //! Each verdict weighs `w = 0.5^(age / half_life)`, its age counted from its
 //! report. For one candidate c of a query q:
@@ -63,10 +75,15 @@ pub struct VerdictParams {
     /// Whether stored verdicts change rankings at all (they are stored
     /// either way).
     pub enabled: bool,
-    /// Largest distance, in map units (metres), between two keyframes of
-    /// one map that count as the same place: the ground-truth distance of
-    /// the evaluation protocol.
-    pub radius_m: f64,
+    /// Largest distance between two keyframes of one map that count as the
+    /// same place, in the map's keyframe spacing (the median distance
+    /// between its consecutive keyframes): 3 steps are the evaluation
+    /// protocol's 5 m where keyframes are 1.6 m apart (`town-dev/loop`),
+    /// and hold at any map scale (monocular maps have none).
+    pub radius_steps: f64,
+    /// The same radius in map units, for maps known to be metric; when
+    /// set, it replaces `radius_steps`.
+    pub radius_m: Option<f64>,
     /// `ρ`, the most a look-alike penalty takes off, in [0, 1).
     pub max_penalty: f32,
     /// `g_v`, gain of the verified-place support, in [0, 1].
@@ -107,11 +124,15 @@ pub struct VerdictParams {
     pub max_threshold_raise: f32,
 }
 
+/// Default `radius_steps` (see [`VerdictParams::radius_steps`]).
+pub const RADIUS_STEPS: f64 = 3.0;
+
 impl Default for VerdictParams {
     fn default() -> Self {
         VerdictParams {
             enabled: true,
-            radius_m: 5.0,
+            radius_steps: RADIUS_STEPS,
+            radius_m: None,
             max_penalty: 0.6,
             support_gain: 0.5,
             place_graph: false,
@@ -128,7 +149,10 @@ impl Default for VerdictParams {
 impl VerdictParams {
     /// Checks the ranges; names the offending key.
     pub fn validate(&self) -> Result<(), String> {
-        if !(self.radius_m.is_finite() && self.radius_m >= 0.0) {
+        if !(self.radius_steps.is_finite() && self.radius_steps >= 0.0) {
+            return Err("verdicts.radius_steps must be a finite number >= 0".into());
+        }
+        if self.radius_m.is_some_and(|r| !(r.is_finite() && r >= 0.0)) {
             return Err("verdicts.radius_m must be a finite number >= 0".into());
         }
         if !(0.0..1.0).contains(&self.max_penalty) {
@@ -163,6 +187,12 @@ impl VerdictParams {
         }
     }
 
+    /// `r`, the same-place radius in a map whose keyframe spacing is
+    /// `spacing` (see the module doc).
+    pub fn radius(&self, spacing: f64) -> f64 {
+        self.radius_m.unwrap_or(self.radius_steps * spacing)
+    }
+
     /// `w = 0.5^(age / half_life)` of a verdict reported at `reported_at`,
     /// at `now` (both seconds since the epoch); a verdict from the future
     /// (clocks of two replicas) weighs 1.
@@ -181,11 +211,20 @@ pub struct Place<'a> {
     pub map_id: u64,
     /// Its stored camera centre in that map.
     pub position: [f64; 3],
+    /// `s`, its map's keyframe spacing: the median distance between the
+    /// map's consecutive keyframes (0 for a map of one keyframe).
+    pub spacing: f64,
 }
 
 impl Place<'_> {
+    /// The same keyframe, or the same map and at most `r` apart (`r` of
+    /// this map's spacing).
+    pub fn near(&self, other: &Place, params: &VerdictParams) -> bool {
+        self.within(other, params.radius(self.spacing))
+    }
+
     /// The same keyframe, or the same map and at most `radius` apart.
-    pub fn near(&self, other: &Place, radius: f64) -> bool {
+    pub fn within(&self, other: &Place, radius: f64) -> bool {
         if self.key == other.key {
             return true;
         }
@@ -238,9 +277,9 @@ impl<'a> PlacedVerdict<'a> {
     }
 
     /// Whether it links places `x` and `y` (in either order).
-    fn links(&self, x: &Place, y: &Place, radius: f64) -> bool {
-        (self.query.near(x, radius) && self.candidate.near(y, radius))
-            || (self.query.near(y, radius) && self.candidate.near(x, radius))
+    fn links(&self, x: &Place, y: &Place, params: &VerdictParams) -> bool {
+        (self.query.near(x, params) && self.candidate.near(y, params))
+            || (self.query.near(y, params) && self.candidate.near(x, params))
     }
 }
 
@@ -263,9 +302,9 @@ fn pair_evidence(
     x: &Place,
     y: &Place,
     verdicts: &[PlacedVerdict],
-    radius: f64,
+    params: &VerdictParams,
 ) -> (f64, f64, u32, u32) {
-    let linking = || verdicts.iter().filter(|v| v.links(x, y, radius));
+    let linking = || verdicts.iter().filter(|v| v.links(x, y, params));
     let newest_acceptance = linking()
         .filter(|v| v.accepted)
         .map(|v| v.reported_at)
@@ -294,7 +333,6 @@ pub fn apply(
     scores: &mut [f32],
     verdicts: &[PlacedVerdict],
 ) -> Vec<VerdictEffect> {
-    let radius = params.radius_m;
     let rho = f64::from(params.max_penalty);
     let mut effects = vec![VerdictEffect::default(); candidates.len()];
     if verdicts.is_empty() {
@@ -303,7 +341,7 @@ pub fn apply(
     let mut own_support = vec![0.0f64; candidates.len()];
     for (i, c) in candidates.iter().enumerate() {
         let Some(q) = query else { continue };
-        let (r, a, nr, na) = pair_evidence(q, c, verdicts, radius);
+        let (r, a, nr, na) = pair_evidence(q, c, verdicts, params);
         let penalty = rho * (1.0 - (-r).exp());
         effects[i].penalty = penalty as f32;
         effects[i].rejections = nr;
@@ -316,10 +354,10 @@ pub fn apply(
         let mut support = own_support[i];
         if params.place_graph {
             for (j, other) in candidates.iter().enumerate() {
-                if j == i || other.near(c, radius) {
+                if j == i || other.near(c, params) {
                     continue;
                 }
-                let (_, a, _, _) = pair_evidence(c, other, verdicts, radius);
+                let (_, a, _, _) = pair_evidence(c, other, verdicts, params);
                 if a > 0.0 {
                     support = support.max((1.0 - (-a).exp()) * f64::from(penalised[j]));
                 }
@@ -346,11 +384,15 @@ mod tests {
         }
     }
 
+    /// Keyframe spacing of the tests' map: 3 steps make the radius 5.
+    const SPACING: f64 = 5.0 / 3.0;
+
     fn place(key: &KeyframeKey, x: f64) -> Place<'_> {
         Place {
             key,
             map_id: 0,
             position: [x, 0.0, 0.0],
+            spacing: SPACING,
         }
     }
 
@@ -375,19 +417,65 @@ mod tests {
 
     #[test]
     fn places_are_near_within_the_radius_of_one_map() {
+        let p = VerdictParams::default();
         let (a, b) = (key(1), key(2));
-        assert!(place(&a, 0.0).near(&place(&b, 5.0), 5.0));
-        assert!(!place(&a, 0.0).near(&place(&b, 5.01), 5.0));
+        assert!(close(p.radius(SPACING) as f32, 5.0));
+        assert!(place(&a, 0.0).near(&place(&b, 5.0), &p));
+        assert!(!place(&a, 0.0).near(&place(&b, 5.01), &p));
         let mut other_map = place(&b, 0.0);
         other_map.map_id = 1;
-        assert!(!place(&a, 0.0).near(&other_map, 5.0));
+        assert!(!place(&a, 0.0).near(&other_map, &p));
         // The same keyframe is always its own place.
         let far = Place {
             key: &a,
             map_id: 7,
             position: [100.0, 0.0, 0.0],
+            spacing: SPACING,
         };
-        assert!(place(&a, 0.0).near(&far, 5.0));
+        assert!(place(&a, 0.0).near(&far, &p));
+    }
+
+    /// A monocular map's scale is arbitrary: the same keyframes at 1/37 of
+    /// the distances (ORB-SLAM3's first map of the town loop) are near
+    /// exactly where they were, since the spacing shrinks with them. A
+    /// radius in map units (`radius_m`) does not scale: at 5 units the
+    /// shrunken map is one place.
+    #[test]
+    fn the_radius_follows_the_map_scale() {
+        let p = VerdictParams::default();
+        let metric = VerdictParams {
+            radius_m: Some(5.0),
+            ..VerdictParams::default()
+        };
+        let (a, b) = (key(1), key(2));
+        let scaled = |key, x: f64| Place {
+            position: [x / 37.0, 0.0, 0.0],
+            spacing: SPACING / 37.0,
+            ..place(key, 0.0)
+        };
+        for (x, near) in [(4.9, true), (5.1, false), (60.0, false), (180.0, false)] {
+            assert_eq!(place(&a, 0.0).near(&place(&b, x), &p), near, "{x}");
+            assert_eq!(scaled(&a, 0.0).near(&scaled(&b, x), &p), near, "{x}");
+            assert_eq!(place(&a, 0.0).near(&place(&b, x), &metric), near, "{x}");
+            assert!(scaled(&a, 0.0).near(&scaled(&b, x), &metric), "{x}");
+        }
+        // r = 3 s, or radius_m where set.
+        assert!(close(p.radius(2.0) as f32, 6.0));
+        assert!(close(metric.radius(2.0) as f32, 5.0));
+        // A map without spacing (one keyframe, or poses never sent) has
+        // only its keyframes' own places.
+        let lone = Place {
+            spacing: 0.0,
+            ..place(&a, 0.0)
+        };
+        assert!(!lone.near(
+            &Place {
+                spacing: 0.0,
+                ..place(&b, 0.5)
+            },
+            &p
+        ));
+        assert!(lone.near(&lone, &p));
     }
 
     /// A look-alike L (at x = 100) was rejected twice for queries at the
