@@ -882,8 +882,10 @@ mod tests {
         assert_eq!(index.map_spacing(&map), 2.0);
         assert_eq!(index.place(&key(2)).unwrap().spacing, 2.0);
         // A corrected pose: id 4 at x = 3.5 (steps 1, 2, 0.5).
-        let mut pose = Pose::default();
-        pose.translation = [3.5, 0.0, 0.0];
+        let pose = Pose {
+            translation: [3.5, 0.0, 0.0],
+            ..Pose::default()
+        };
         index.update_pose(&key(4), pose, None);
         assert_eq!(index.map_spacing(&map), 1.0);
         // Id 3 moves to map 1: steps 1, 2.5; the median is the upper one.
