@@ -182,6 +182,8 @@ void FromProto(const v1::QueryResponse& response, QueryResult* out) {
   out->candidates.clear();
   for (const v1::Candidate& c : response.candidates()) out->candidates.push_back(FromProto(c));
   out->eligible_keyframes = response.eligible_keyframes();
+  out->threshold = response.threshold();
+  out->operating_threshold = response.operating_threshold();
   out->used_predecessor_ids.assign(response.used_predecessor_ids().begin(),
                                    response.used_predecessor_ids().end());
   out->timings.clear();
@@ -209,6 +211,14 @@ void FromProto(const v1::StatsResponse& response, StoreStats* out) {
   out->format_version = response.format_version();
   out->server_version = response.server_version();
   out->verdicts = response.verdicts();
+  const v1::OperatingPoint& point = response.operating_point();
+  out->operating_point = OperatingPoint();
+  out->operating_point.threshold = point.threshold();
+  out->operating_point.configured_threshold = point.configured_threshold();
+  if (point.has_estimated_precision()) out->operating_point.estimated_precision = point.estimated_precision();
+  if (point.has_configured_precision())
+    out->operating_point.configured_precision = point.configured_precision();
+  out->operating_point.verdicts = point.verdicts();
 }
 
 }  // namespace humem::internal

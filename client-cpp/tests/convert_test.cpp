@@ -169,6 +169,8 @@ TEST(Convert, AnsweredQueriesCarryCandidatesAndEvidence) {
   v1::QueryResponse response;
   response.set_status(v1::QUERY_STATUS_ANSWERED);
   response.set_eligible_keyframes(40);
+  response.set_threshold(0.25f);
+  response.set_operating_threshold(0.41f);
   response.add_used_predecessor_ids(8);
   v1::StageTiming* t = response.add_timings();
   t->set_stage("scal");
@@ -201,6 +203,8 @@ TEST(Convert, AnsweredQueriesCarryCandidatesAndEvidence) {
   EXPECT_FALSE(result.candidates[1].evidence.scene_compatibility.has_value());
   EXPECT_EQ(result.candidates[1].evidence.text_matches[0].candidate_text, "A1");
   EXPECT_EQ(result.eligible_keyframes, 40u);
+  EXPECT_FLOAT_EQ(result.threshold, 0.25f);
+  EXPECT_FLOAT_EQ(result.operating_threshold, 0.41f);
   EXPECT_EQ(result.used_predecessor_ids, std::vector<uint64_t>{8});
   ASSERT_EQ(result.timings.size(), 1u);
   EXPECT_EQ(result.timings[0].stage, "scal");
@@ -217,8 +221,19 @@ TEST(Convert, StatsPerMap) {
   m->set_keyframes(3);
   response.set_server_version("1.2.3");
   response.set_verdicts(4);
+  v1::OperatingPoint* point = response.mutable_operating_point();
+  point->set_threshold(0.42f);
+  point->set_configured_threshold(0.36f);
+  point->set_estimated_precision(0.91);
+  point->set_verdicts(35);
   StoreStats stats;
   FromProto(response, &stats);
+  EXPECT_FLOAT_EQ(stats.operating_point.threshold, 0.42f);
+  EXPECT_FLOAT_EQ(stats.operating_point.configured_threshold, 0.36f);
+  ASSERT_TRUE(stats.operating_point.estimated_precision.has_value());
+  EXPECT_DOUBLE_EQ(stats.operating_point.estimated_precision.value(), 0.91);
+  EXPECT_FALSE(stats.operating_point.configured_precision.has_value());
+  EXPECT_EQ(stats.operating_point.verdicts, 35u);
   EXPECT_EQ(stats.keyframes, 3u);
   EXPECT_EQ(stats.descriptor_dim, 64u);
   EXPECT_EQ(stats.KeyframesIn("r", "s", 1), 3u);

@@ -318,10 +318,15 @@ struct QueryResult {
   std::vector<uint64_t> used_predecessor_ids;
   std::vector<StageTiming> timings;
   double round_trip_seconds;  // from sending to the reply (0 if not sent)
+  // The threshold applied to Candidate::score, and the store's operating
+  // point when the query ran (what a query naming no threshold gets: the
+  // configured one, or the one SLAM's verdicts adapted). 0 until answered.
+  float threshold;
+  float operating_threshold;
 
   QueryResult()
       : ticket(0), kind(QueryKind::kLoopClosure), state(QueryState::kQueued), eligible_keyframes(0),
-        round_trip_seconds(0) {}
+        round_trip_seconds(0), threshold(0), operating_threshold(0) {}
 
   // True once the ticket will not change any more.
   bool resolved() const { return state != QueryState::kQueued && state != QueryState::kInFlight; }
@@ -402,6 +407,18 @@ struct MapStats {
   MapStats() : map_id(0), keyframes(0) {}
 };
 
+// The store's operating point (StatsResponse.operating_point).
+struct OperatingPoint {
+  float threshold;             // in force
+  float configured_threshold;  // as configured
+  // Estimated precision of the candidates sent at each, from the verdicts;
+  // unset while too few verdicts exist.
+  Optional<double> estimated_precision;
+  Optional<double> configured_precision;
+  uint64_t verdicts;  // scored verdicts above the configured threshold
+  OperatingPoint() : threshold(0), configured_threshold(0), verdicts(0) {}
+};
+
 struct StoreStats {
   uint64_t keyframes;
   uint32_t descriptor_dim;  // 0 until fixed
@@ -410,6 +427,7 @@ struct StoreStats {
   uint32_t format_version;
   std::string server_version;
   uint64_t verdicts;  // verification verdicts stored (ReportVerification)
+  OperatingPoint operating_point;
   StoreStats() : keyframes(0), descriptor_dim(0), disk_bytes(0), format_version(0), verdicts(0) {}
 
   // Keyframes stored for one robot/session/map (0 if none).
