@@ -10,9 +10,10 @@
 // factory returns a plain KeyFrameDatabase: ORB-SLAM3 runs exactly as before.
 //
 // What it does, per thread of ORB-SLAM3:
-//   Tracking     NewFrame: puts the grayscale frame in an image ring cache
-//                (keyframes do not keep their image).
-//                NewKeyFrame: sends the keyframe (its frame's image as GRAY8,
+//   Tracking     NewFrame: puts the frame as the camera gave it (colour, or
+//                grey from a grey camera) in an image ring cache (keyframes
+//                do not keep their image).
+//                NewKeyFrame: sends the keyframe (its frame's image,
 //                T_wc, map id, ids, timestamp) to HuMem and submits its loop
 //                query (with the same image) at once.
 //                TrackingRecentlyLost / DetectRelocalizationCandidates:
@@ -90,6 +91,7 @@ struct HuMemSettings
     bool poseUpdates;             // HuMem.PoseUpdates: UpdatePoses after loop/GBA/merge (1)
     bool reportVerdicts;          // HuMem.ReportVerdicts: ReportVerification of ORB-SLAM3's verdicts (1)
     float verifyBelowScore;       // HuMem.VerifyBelowScore: candidates scored below need a 4th coincidence (0: off; default 0.5)
+    std::string imageOrder;       // HuMem.ImageOrder: bgr (default; cv::imread, VideoCapture) | rgb | gray (send grey)
     int verbose;                  // HuMem.Verbose: 0 warnings, 1 info (default), 2 debug
 
     HuMemSettings();
@@ -117,7 +119,7 @@ public:
                                std::vector<KeyFrame*> &vpMergeCand, int nNumCandidates) override;
     std::vector<KeyFrame*> DetectRelocalizationCandidates(Frame* F, Map* pMap) override;
 
-    void NewFrame(const cv::Mat &imGray, const Frame &F) override;
+    void NewFrame(const cv::Mat &im, const Frame &F) override;
     void NewKeyFrame(KeyFrame* pKF) override;
     void TrackingRecentlyLost(Frame* F, Map* pMap) override;
     void MapCorrected(Map* pMap) override;
