@@ -332,22 +332,19 @@ void VprKeyFrameDatabase::NewFrame(const cv::Mat &im, const Frame &F)
         frame.convertTo(tmp, CV_8U);
         frame = tmp;
     }
-    const bool grey = frame.channels() == 1 || mSettings.imageOrder == "gray";
-    cv::Mat packed;
+    // A grey camera's frame goes as it is; a colour one in colour, or in
+    // grey (taken as BGR, OpenCV's order) with HuMem.ImageOrder: gray.
+    const bool rgb = mSettings.imageOrder == "rgb";
+    const bool four = frame.channels() == 4;
+    cv::Mat packed = frame;
     humem::Image::Encoding encoding = humem::Image::kGray8;
-    if(frame.channels() == 1)
-        packed = frame;
-    else if(grey)
-        cv::cvtColor(frame, packed,
-                     frame.channels() == 4 ? (mSettings.imageOrder == "rgb" ? cv::COLOR_RGBA2GRAY : cv::COLOR_BGRA2GRAY)
-                                           : (mSettings.imageOrder == "rgb" ? cv::COLOR_RGB2GRAY : cv::COLOR_BGR2GRAY));
-    else
+    if(frame.channels() != 1 && mSettings.imageOrder == "gray")
+        cv::cvtColor(frame, packed, four ? cv::COLOR_BGRA2GRAY : cv::COLOR_BGR2GRAY);
+    else if(frame.channels() != 1)
     {
-        if(frame.channels() == 4)
-            cv::cvtColor(frame, packed, mSettings.imageOrder == "rgb" ? cv::COLOR_RGBA2RGB : cv::COLOR_BGRA2BGR);
-        else
-            packed = frame;
-        encoding = mSettings.imageOrder == "rgb" ? humem::Image::kRgb8 : humem::Image::kBgr8;
+        if(four)
+            cv::cvtColor(frame, packed, rgb ? cv::COLOR_RGBA2RGB : cv::COLOR_BGRA2BGR);
+        encoding = rgb ? humem::Image::kRgb8 : humem::Image::kBgr8;
     }
     std::shared_ptr<const humem::Image> image = std::make_shared<humem::Image>(
         humem::Image::Raw(encoding, packed.data, static_cast<uint32_t>(packed.cols),

@@ -21,7 +21,7 @@ use crate::row_ids::{Eligibility, Interner, RowIds};
 use crate::verdict::{Verdict, VerdictBook, VerificationKind};
 use crate::vpr::appearance::AppearanceMatrix;
 use crate::vpr::eligibility::QueryContext;
-use crate::vpr::feedback::{Place, VerdictParams};
+use crate::vpr::feedback::{squared_distance, Place, VerdictParams};
 use crate::vpr::operating_point::{OperatingPoint, Sample};
 use crate::vpr::{self, DescriptorMatrix, KeyframeMemory};
 
@@ -503,15 +503,7 @@ impl Index {
             .get(&map)
             .into_iter()
             .flat_map(|track| track.values())
-            .map(|&row| {
-                let meta = &self.rows[row];
-                Place {
-                    key: &meta.key,
-                    map_id: meta.map_id,
-                    position: meta.pose.translation,
-                    spacing: place.spacing,
-                }
-            })
+            .map(|&row| self.place_with_spacing(row, place.spacing))
             .filter(|other| place.within(other, radius))
             .map(|other| other.key)
             .collect()
@@ -537,12 +529,7 @@ impl Index {
             .collect();
         let mut steps: Vec<f64> = positions
             .windows(2)
-            .map(|w| {
-                (0..3)
-                    .map(|i| (w[1][i] - w[0][i]).powi(2))
-                    .sum::<f64>()
-                    .sqrt()
-            })
+            .map(|w| squared_distance(w[0], w[1]).sqrt())
             .collect();
         let spacing = if steps.is_empty() {
             0.0
@@ -564,12 +551,17 @@ impl Index {
 
     /// Where the keyframe of `row` is. Panics if `row` is out of range.
     pub fn place_of_row(&self, row: usize) -> Place<'_> {
+        self.place_with_spacing(row, self.map_spacing(&self.rows[row].map_key()))
+    }
+
+    /// The place of `row` in a map whose spacing is already known.
+    fn place_with_spacing(&self, row: usize, spacing: f64) -> Place<'_> {
         let meta = &self.rows[row];
         Place {
             key: &meta.key,
             map_id: meta.map_id,
             position: meta.pose.translation,
-            spacing: self.map_spacing(&meta.map_key()),
+            spacing,
         }
     }
 

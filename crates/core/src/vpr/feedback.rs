@@ -234,11 +234,13 @@ impl Place<'_> {
         {
             return false;
         }
-        let d2: f64 = (0..3)
-            .map(|i| (self.position[i] - other.position[i]).powi(2))
-            .sum();
-        d2 <= radius * radius
+        squared_distance(self.position, other.position) <= radius * radius
     }
+}
+
+/// `|a − b|²` of two stored positions.
+pub fn squared_distance(a: [f64; 3], b: [f64; 3]) -> f64 {
+    (0..3).map(|i| (a[i] - b[i]).powi(2)).sum()
 }
 
 /// A verdict whose two keyframes were found, with its weight now.
