@@ -20,6 +20,8 @@
 //!   and the load generator.
 
 pub mod index;
+#[cfg(test)]
+mod index_scan_tests;
 pub mod keyframe;
 pub mod observe;
 pub mod row_ids;

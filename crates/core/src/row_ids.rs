@@ -162,25 +162,34 @@ impl Eligibility {
         let gap = !own_session
             || (self.keyframe_id != Some(ids.keyframe_id)
                 && self.frame_id.abs_diff(ids.frame_id) >= self.min_frame_gap);
-        if !gap
-            || self
-                .readable
-                .as_ref()
-                .is_some_and(|robots| !robots.contains(&ids.robot))
+        gap && self.admits_map(ids.robot, ids.session, ids.map_id)
+    }
+
+    /// Whether the keyframes of one map (robot, session, map id) may be
+    /// proposed as far as the scope and read access go: false means no row
+    /// of the map passes [`Eligibility::test`], true that the gap rule
+    /// decides row by row. What a scan restricted to the allowed maps
+    /// relies on.
+    #[inline]
+    pub fn admits_map(&self, robot: u32, session: u32, map_id: u64) -> bool {
+        if self
+            .readable
+            .as_ref()
+            .is_some_and(|robots| !robots.contains(&robot))
         {
             return false;
         }
-        let same_map = own_session && ids.map_id == self.map_id;
+        let same_map = self.session == Some(session) && map_id == self.map_id;
         match &self.scope {
             CompiledScope::SameMap => same_map,
             CompiledScope::OtherMaps => !same_map,
             CompiledScope::AllMaps => true,
             CompiledScope::Listed { robots, maps } => {
-                robots.contains(&ids.robot)
+                robots.contains(&robot)
                     || maps.iter().any(|m| {
-                        m.robot == ids.robot
-                            && m.map_id == ids.map_id
-                            && m.session.is_none_or(|s| s == ids.session)
+                        m.robot == robot
+                            && m.map_id == map_id
+                            && m.session.is_none_or(|s| s == session)
                     })
             }
         }
@@ -257,6 +266,9 @@ mod tests {
                     &CandidateMeta { key, frame_id: *frame_id, map_id: *map_id },
                 );
                 prop_assert_eq!(rule.test(ids), expected, "{:?}", key);
+                // A row that passes is in a map the rule admits: a scan of
+                // the admitted maps' rows misses none.
+                prop_assert!(!expected || rule.admits_map(ids.robot, ids.session, ids.map_id));
             }
         }
     }

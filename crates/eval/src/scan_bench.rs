@@ -52,6 +52,14 @@ pub struct ScanBench {
     /// directory).
     #[arg(long)]
     pub dir: Option<std::path::PathBuf>,
+    /// The scoped case: a fleet of this many robots (0: skip it), each
+    /// with two maps, queried over one map, over its own robot's maps and
+    /// over every map.
+    #[arg(long, default_value_t = 50)]
+    pub scoped_robots: usize,
+    /// Keyframes per robot in the scoped case.
+    #[arg(long, default_value_t = 10_000)]
+    pub scoped_keyframes: usize,
 }
 
 /// Keyframes per place visit, on average: a robot passes a place in a few
@@ -241,6 +249,120 @@ fn per_keyframe_cell(bytes: Option<f64>, dim: usize) -> String {
     })
 }
 
+/// The scoped case's store: `robots` robots of `keyframes` keyframes each,
+/// inserted in turn as a fleet's arrive; each robot's first half of
+/// keyframes is its map 0, the second half its map 1.
+fn fleet_store(robots: usize, keyframes: usize, dim: usize) -> Index {
+    let rows = robots * keyframes;
+    let mut index = Index::new(dim);
+    let mut fleet = SyntheticFleet::new(rows, dim, robots);
+    for i in 0..rows {
+        let mut keyframe = fleet.keyframe(i);
+        keyframe.map_id = u64::from(keyframe.key.keyframe_id >= (keyframes / 2) as u64);
+        index.upsert(keyframe);
+    }
+    index
+}
+
+/// The scoped case's queries: what a robot may see, narrowest first.
+const SCOPES: [(&str, Scope, bool); 3] = [
+    ("SAME_MAP", Scope::SameMap, false),
+    ("ALL_MAPS, reads only its own robot", Scope::AllMaps, true),
+    ("ALL_MAPS", Scope::AllMaps, false),
+];
+
+/// One scope's figures in the scoped case.
+struct ScopedRow {
+    name: &'static str,
+    eligible: u64,
+    full: f64,
+    partitioned: f64,
+    identical: usize,
+}
+
+/// The scoped case: robot 0's loop queries (in its map 1) over each of
+/// [`SCOPES`], on every core as the server runs them, with the partitioned
+/// scan and with a scan of every row (what a query cost before the store
+/// was partitioned), answers compared.
+fn scoped(config: &Config, args: &ScanBench) -> anyhow::Result<Vec<ScopedRow>> {
+    let (robots, keyframes) = (args.scoped_robots, args.scoped_keyframes);
+    ensure!(keyframes >= 200, "--scoped-keyframes must be at least 200");
+    eprintln!(
+        "bench scan: building the scoped store, {robots} robots x {keyframes} keyframes x {}",
+        args.dim
+    );
+    let index = fleet_store(robots, keyframes, args.dim);
+    let k = config.vpr.top_k;
+    let mut rng = Rng::new(7);
+    let half = (keyframes / 2) as u64;
+    let ids: Vec<u64> = (0..args.queries + 2)
+        .map(|_| half + 2 + rng.next() % (half - 2))
+        .collect();
+    let mut table = Vec::new();
+    for (name, scope, own_only) in SCOPES {
+        let (mut full, mut parted, mut identical, mut eligible) = (vec![], vec![], 0, 0);
+        for (n, &id) in ids.iter().enumerate() {
+            let mut spec = spec(id, k);
+            spec.scope = scope.clone();
+            spec.map_id = Some(1);
+            if own_only {
+                spec.readable_robots = Some(vec!["robot-0".into()]);
+            }
+            let (t_full, a) = timed(|| query::run_full_scan(&index, &config.vpr, &spec));
+            let (t_parted, b) = timed(|| query::run(&index, &config.vpr, &spec));
+            let (a, b) = (
+                a.map_err(|e| anyhow::anyhow!("query {id}: {e:?}"))?,
+                b.map_err(|e| anyhow::anyhow!("query {id}: {e:?}"))?,
+            );
+            eligible = b.eligible;
+            if n < 2 {
+                continue;
+            }
+            full.push(t_full);
+            parted.push(t_parted);
+            if answer(&a) == answer(&b) && a.eligible == b.eligible {
+                identical += 1;
+            }
+        }
+        table.push(ScopedRow {
+            name,
+            eligible,
+            full: median_ms(&full),
+            partitioned: median_ms(&parted),
+            identical,
+        });
+    }
+    Ok(table)
+}
+
+/// Prints the scoped case's table.
+fn print_scoped(args: &ScanBench, table: &[ScopedRow]) {
+    let threads = rayon::current_num_threads();
+    let store = args.scoped_robots * args.scoped_keyframes;
+    let all = table.last().map_or(f64::NAN, |r| r.partitioned);
+    println!();
+    println!(
+        "Scoped queries: {} robots x {} keyframes ({store}, {}-d, two maps a robot), robot 0's loop queries, SCAL only, {threads} cores, median of {}; ratios against ALL_MAPS in the same run",
+        args.scoped_robots, args.scoped_keyframes, args.dim, args.queries
+    );
+    println!("| query | eligible | every row scanned | partitioned | partitioned vs ALL_MAPS | same answers |");
+    println!("| --- | --- | --- | --- | --- | --- |");
+    for r in table {
+        println!(
+            "| {} | {} ({:.1} %) | {:.1} ms | {:.1} ms ({:.2}x) | {:.3}x | {}/{} |",
+            r.name,
+            r.eligible,
+            100.0 * r.eligible as f64 / store as f64,
+            r.full,
+            r.partitioned,
+            r.partitioned / r.full,
+            r.partitioned / all,
+            r.identical,
+            args.queries
+        );
+    }
+}
+
 /// Runs the benchmark and prints the table.
 pub fn scan(config: Config, args: ScanBench) -> anyhow::Result<()> {
     ensure!(args.queries > 0, "--queries must be at least 1");
@@ -404,6 +526,10 @@ pub fn scan(config: Config, args: ScanBench) -> anyhow::Result<()> {
             per_keyframe_cell(r.file_per_keyframe, args.dim),
         );
     }
+    if args.scoped_robots > 0 {
+        let scoped = scoped(&config, &args)?;
+        print_scoped(&args, &scoped);
+    }
     Ok(())
 }
 
@@ -430,6 +556,27 @@ mod tests {
             top.iter().any(|&(_, r)| r == 10),
             "a row is its own best match"
         );
+    }
+
+    #[test]
+    fn the_scoped_case_answers_as_the_full_scan_and_sees_what_its_scope_allows() {
+        let args = ScanBench {
+            rows: vec![],
+            dim: 32,
+            queries: 3,
+            robots: 1,
+            dir: None,
+            scoped_robots: 10,
+            scoped_keyframes: 400,
+        };
+        let table = scoped(&Config::default(), &args).unwrap();
+        let eligible: Vec<u64> = table.iter().map(|r| r.eligible).collect();
+        // One map of robot 0 less the gap window, both of its maps, then
+        // every keyframe (other robots' rows are always eligible).
+        assert!(eligible[0] < 200 && eligible[0] > 100, "{eligible:?}");
+        assert!(eligible[1] < 400 && eligible[1] > 300, "{eligible:?}");
+        assert!(eligible[2] > 3_900, "{eligible:?}");
+        assert!(table.iter().all(|r| r.identical == 3));
     }
 
     #[test]

@@ -145,6 +145,27 @@ pub fn run(
     params: &VprParams,
     spec: &QuerySpec,
 ) -> Result<QueryOutcome, QueryError> {
+    run_scanning(index, params, spec, true)
+}
+
+/// [`run`] with a scan of every stored row, even when the query may see
+/// only a few maps: the same answer, at the cost of the whole store. The
+/// reference `humem bench scan` measures and checks the partitioned scan
+/// against.
+pub fn run_full_scan(
+    index: &Index,
+    params: &VprParams,
+    spec: &QuerySpec,
+) -> Result<QueryOutcome, QueryError> {
+    run_scanning(index, params, spec, false)
+}
+
+fn run_scanning(
+    index: &Index,
+    params: &VprParams,
+    spec: &QuerySpec,
+    partitioned: bool,
+) -> Result<QueryOutcome, QueryError> {
     let stored_row = spec
         .keyframe_id
         .and_then(|keyframe_id| index.row_of(&spec.session.keyframe(keyframe_id)));
@@ -158,8 +179,12 @@ pub fn run(
     let mut history = vec![&current];
     history.extend(predecessors.iter());
 
-    let rule = index.eligibility(&context);
-    let eligible = |row: usize| rule.test(row);
+    let eligible = index.eligibility(&context);
+    let eligible = if partitioned {
+        eligible
+    } else {
+        eligible.without_partition()
+    };
     let query = QueryObservation { history };
     let vpr::Ranking {
         candidates: mut ranked,

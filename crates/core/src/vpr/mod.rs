@@ -35,6 +35,7 @@ pub mod codes;
 pub mod contradiction;
 pub mod eligibility;
 pub mod feedback;
+pub mod filter;
 pub mod fusion;
 pub mod kernels;
 pub mod matrix;
@@ -50,12 +51,13 @@ pub mod scan;
 pub mod text;
 
 #[cfg(test)]
-mod testing;
+pub(crate) mod testing;
 
 pub use calibration::NullModel;
 pub use contradiction::{Contradiction, MissingObject, TextConflict};
 pub use eligibility::{is_eligible, CandidateMeta, MapRef, QueryContext, Scope};
 pub use feedback::{VerdictEffect, VerdictParams};
+pub use filter::RowFilter;
 pub use fusion::{corroboration, fuse, fuse_with_contradiction};
 pub use matrix::{dot, DescriptorMatrix};
 pub use memory::{KeyframeMemory, VecMemory};

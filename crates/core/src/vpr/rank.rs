@@ -14,6 +14,7 @@ use std::time::{Duration, Instant};
 use crate::keyframe::Features;
 use crate::vpr::calibration::NullModel;
 use crate::vpr::contradiction::{contradiction, Contradiction};
+use crate::vpr::filter::RowFilter;
 use crate::vpr::fusion::{corroboration, fuse, fuse_with_contradiction};
 use crate::vpr::memory::KeyframeMemory;
 use crate::vpr::ogtl::{ogtl, text_profile_in, OgtlResult};
@@ -85,7 +86,7 @@ pub fn rank<M, E>(
 ) -> Vec<RankedCandidate>
 where
     M: KeyframeMemory + ?Sized,
-    E: Fn(usize) -> bool + Sync + ?Sized,
+    E: RowFilter + ?Sized,
 {
     rank_timed(params, layers, query, memory, eligible).candidates
 }
@@ -138,7 +139,7 @@ pub fn rank_timed<M, E>(
 ) -> Ranking
 where
     M: KeyframeMemory + ?Sized,
-    E: Fn(usize) -> bool + Sync + ?Sized,
+    E: RowFilter + ?Sized,
 {
     let mut times = StageTimes::default();
     let Some(current) = query.history.first() else {

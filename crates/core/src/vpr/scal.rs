@@ -10,6 +10,7 @@
 
 use crate::keyframe::{Features, SceneClass};
 use crate::vpr::clip01;
+use crate::vpr::filter::RowFilter;
 use crate::vpr::matrix::dot;
 use crate::vpr::memory::KeyframeMemory;
 use crate::vpr::params::{TemporalMode, VprParams};
@@ -196,7 +197,7 @@ pub fn scal_scores<M, E>(
 ) -> Vec<ScalHit>
 where
     M: KeyframeMemory + ?Sized,
-    E: Fn(usize) -> bool + Sync + ?Sized,
+    E: RowFilter + ?Sized,
 {
     scal_scan(params, query, memory, eligible).hits
 }

@@ -26,6 +26,14 @@
 //! Both passes split the rows into blocks that rayon runs on every core;
 //! each row's result depends only on the row, and ties order by row, so the
 //! answer does not depend on the number of threads.
+//!
+//! A filter that names its [partition](RowFilter::partition) (the rows of
+//! the maps a query may see) is scanned over those rows only, in row
+//! order: the same blocks, read in runs of consecutive rows. Every row's
+//! bounds and scores are computed as in the full pass, the null sample is
+//! the same (it is drawn from the eligible rows by their tags), and the
+//! answer is the full pass's, bit for bit; only its cost follows the
+//! partition.
 
 use std::cell::Cell;
 use std::cmp::Ordering;
@@ -37,6 +45,7 @@ use crate::keyframe::Features;
 use crate::vpr::appearance;
 use crate::vpr::calibration::{NullModel, Sampler};
 use crate::vpr::codes::QueryCode;
+use crate::vpr::filter::RowFilter;
 use crate::vpr::kernels::CodeKernel;
 use crate::vpr::matrix::multi_dot;
 use crate::vpr::memory::KeyframeMemory;
@@ -79,17 +88,101 @@ pub struct ScalScan {
 pub fn scal_scan<M, E>(params: &VprParams, query: &ScalQuery, memory: &M, eligible: &E) -> ScalScan
 where
     M: KeyframeMemory + ?Sized,
-    E: Fn(usize) -> bool + Sync + ?Sized,
+    E: RowFilter + ?Sized,
 {
     if query.history.is_empty() {
         return ScalScan::default();
     }
     let side = QuerySide::new(params, &query.history);
-    let rows = memory.descriptors().len();
-    if codes_first_from(params.scan).is_some_and(|from| rows >= from) {
-        compressed_scan(params, &side, memory, eligible)
+    let matrix = memory.descriptors();
+    let visit = match eligible.partition() {
+        Some(rows) => Visit::Only(rows),
+        None => Visit::All(matrix.len()),
+    };
+    // In memory, the codes pay off from enough visited rows; in a file,
+    // every f32 row read is a system call, so the store's size decides.
+    let rows = if matrix.in_memory() {
+        visit.len()
     } else {
-        exact_scan(params, &side, memory, eligible)
+        matrix.len()
+    };
+    if codes_first_from(params.scan).is_some_and(|from| rows >= from) {
+        compressed_scan(params, &side, memory, eligible, visit)
+    } else {
+        exact_scan(params, &side, memory, eligible, visit)
+    }
+}
+
+/// The rows a pass visits, by position: every stored row, or the sorted
+/// rows of a filter's partition.
+#[derive(Debug, Clone, Copy)]
+enum Visit<'a> {
+    /// Rows `0..n`.
+    All(usize),
+    /// These rows, ascending.
+    Only(&'a [usize]),
+}
+
+impl<'a> Visit<'a> {
+    fn len(&self) -> usize {
+        match self {
+            Visit::All(n) => *n,
+            Visit::Only(rows) => rows.len(),
+        }
+    }
+
+    /// The rows at positions `first..first + len`.
+    fn block(&self, first: usize, len: usize) -> Block<'a> {
+        match self {
+            Visit::All(_) => Block::Range(first, len),
+            Visit::Only(rows) => Block::Rows(&rows[first..first + len]),
+        }
+    }
+}
+
+/// The rows of one block of a [`Visit`].
+#[derive(Debug, Clone, Copy)]
+enum Block<'a> {
+    /// `len` rows from `first` on.
+    Range(usize, usize),
+    /// These rows, ascending.
+    Rows(&'a [usize]),
+}
+
+impl Block<'_> {
+    /// The block's `i`-th row.
+    #[inline]
+    fn row(&self, i: usize) -> usize {
+        match self {
+            Block::Range(first, _) => first + i,
+            Block::Rows(rows) => rows[i],
+        }
+    }
+
+    /// The position of `row` in the block, if it is one of its rows.
+    #[inline]
+    fn position(&self, row: usize) -> Option<usize> {
+        match self {
+            Block::Range(first, len) => row.checked_sub(*first).filter(|i| i < len),
+            Block::Rows(rows) => rows.binary_search(&row).ok(),
+        }
+    }
+
+    /// The block's runs of consecutive rows: `(position, first row, rows)`.
+    fn runs(&self) -> Vec<(usize, usize, usize)> {
+        match self {
+            Block::Range(first, len) => vec![(0, *first, *len)],
+            Block::Rows(rows) => {
+                let mut runs: Vec<(usize, usize, usize)> = Vec::new();
+                for (i, &row) in rows.iter().enumerate() {
+                    match runs.last_mut() {
+                        Some((_, first, len)) if *first + *len == row => *len += 1,
+                        _ => runs.push((i, row, 1)),
+                    }
+                }
+                runs
+            }
+        }
     }
 }
 
@@ -344,35 +437,48 @@ fn top_k(hits: &mut Vec<ScalHit>, k: usize) {
     hits.sort_unstable_by(by_score);
 }
 
-/// The f32 pass: every row's `s_e`, then `S_s` of every eligible row.
-fn exact_scan<M, E>(params: &VprParams, side: &QuerySide, memory: &M, eligible: &E) -> ScalScan
+/// The f32 pass: every visited row's `s_e`, then `S_s` of every eligible
+/// row.
+fn exact_scan<M, E>(
+    params: &VprParams,
+    side: &QuerySide,
+    memory: &M,
+    eligible: &E,
+    visit: Visit,
+) -> ScalScan
 where
     M: KeyframeMemory + ?Sized,
-    E: Fn(usize) -> bool + Sync + ?Sized,
+    E: RowFilter + ?Sized,
 {
     let matrix = memory.descriptors();
-    let rows = matrix.len();
-    // Block by block, so that rows kept in a file are read in one call a
-    // block.
-    let mut s_e = vec![[0.0; STEPS]; rows];
+    let dim = matrix.dim();
+    // Block by block, and within a block run by run, so that rows kept in
+    // a file are read in one call a run.
+    let mut s_e = vec![[0.0; STEPS]; visit.len()];
     s_e.par_chunks_mut(BLOCK).enumerate().for_each(|(b, out)| {
-        let first = b * BLOCK;
-        let block = matrix.rows(first, out.len());
-        for (i, (o, r)) in out
-            .iter_mut()
-            .zip(block.chunks_exact(matrix.dim()))
-            .enumerate()
-        {
-            *o = side.exact_row(memory, first + i, r);
+        let block = visit.block(b * BLOCK, out.len());
+        for (at, first, len) in block.runs() {
+            let data = matrix.rows(first, len);
+            for (i, r) in data.chunks_exact(dim).enumerate() {
+                out[at + i] = side.exact_row(memory, first + i, r);
+            }
         }
     });
-    let mut hits: Vec<ScalHit> = (0..rows)
+    let all = visit.block(0, visit.len());
+    // A chain row outside the visited rows (a filter whose partition
+    // splits a track) is scored on its own: the same value, read again.
+    let s_e_of = |c: usize, j: usize| match all.position(c) {
+        Some(i) => s_e[i][j],
+        None => side.exact_row(memory, c, &matrix.row(c))[j],
+    };
+    let mut hits: Vec<ScalHit> = (0..visit.len())
         .into_par_iter()
         .with_min_len(BLOCK)
-        .filter(|&row| eligible(row))
+        .map(|i| all.row(i))
+        .filter(|&row| eligible.test(row))
         .map(|row| {
             temporal_hit(params, memory, side.steps(), row, |c, j| {
-                (s_e[c][j], side.scenes[j].compatibility(memory.scene(c)))
+                (s_e_of(c, j), side.scenes[j].compatibility(memory.scene(c)))
             })
         })
         .collect();
@@ -387,13 +493,18 @@ where
 }
 
 /// The code pass with exact re-scoring (see the module doc).
-fn compressed_scan<M, E>(params: &VprParams, side: &QuerySide, memory: &M, eligible: &E) -> ScalScan
+fn compressed_scan<M, E>(
+    params: &VprParams,
+    side: &QuerySide,
+    memory: &M,
+    eligible: &E,
+    visit: Visit,
+) -> ScalScan
 where
     M: KeyframeMemory + ?Sized,
-    E: Fn(usize) -> bool + Sync + ?Sized,
+    E: RowFilter + ?Sized,
 {
     let matrix = memory.descriptors();
-    let rows = matrix.len();
     let kernel = CodeKernel::detect();
     let codes: Vec<QueryCode> = side
         .descriptors
@@ -408,18 +519,27 @@ where
     // on their own. NaN marks an ineligible row. Each block keeps its K
     // highest.
     let k = params.top_k;
-    let mut loose = vec![f32::NAN; rows];
+    let mut loose = vec![f32::NAN; visit.len()];
     let per_block: Vec<(usize, Vec<(f32, usize)>)> = loose
         .par_chunks_mut(BLOCK)
         .enumerate()
         .map_init(Default::default, |(upper, bounds), (b, out)| {
-            let first = b * BLOCK;
+            let block = visit.block(b * BLOCK, out.len());
             let upper: &mut Vec<[f32; STEPS]> = upper;
             upper.resize(out.len(), [0.0f32; STEPS]);
-            side.upper_rows(memory, &codes, kernel, first, bounds, upper);
-            let upper_at = |c: usize, j: usize| match c.checked_sub(first) {
-                Some(i) if i < upper.len() => upper[i][j],
-                _ => side.pair_bounds(memory, &codes, kernel, c, j).1,
+            for (at, first, len) in block.runs() {
+                side.upper_rows(
+                    memory,
+                    &codes,
+                    kernel,
+                    first,
+                    bounds,
+                    &mut upper[at..at + len],
+                );
+            }
+            let upper_at = |c: usize, j: usize| match block.position(c) {
+                Some(i) => upper[i][j],
+                None => side.pair_bounds(memory, &codes, kernel, c, j).1,
             };
             // The block's K highest: candidates gather in a buffer of 4K,
             // cut back to the K highest whenever it fills; from then on a
@@ -428,8 +548,8 @@ where
             let mut best = Vec::with_capacity(capacity);
             let (mut count, mut threshold) = (0, f32::NEG_INFINITY);
             for (i, slot) in out.iter_mut().enumerate() {
-                let row = first + i;
-                if eligible(row) {
+                let row = block.row(i);
+                if eligible.test(row) {
                     let u = temporal_hit(params, memory, steps, row, |c, j| (upper_at(c, j), None));
                     *slot = u.score;
                     count += 1;
@@ -475,12 +595,12 @@ where
     let open: Vec<usize> = loose
         .par_chunks(BLOCK)
         .enumerate()
-        .flat_map_iter(|(b, block)| {
-            let first = b * BLOCK;
+        .flat_map_iter(|(b, bounds)| {
+            let block = visit.block(b * BLOCK, bounds.len());
             let mut found = Vec::new();
-            for (i, &u) in block.iter().enumerate() {
+            for (i, &u) in bounds.iter().enumerate() {
                 if u >= floor {
-                    let row = first + i;
+                    let row = block.row(i);
                     let tight = temporal_hit(params, memory, steps, row, |c, j| {
                         (
                             side.pair_bounds(memory, &codes, kernel, c, j).1,
@@ -504,13 +624,14 @@ where
     let sample_rows: Vec<usize> = loose
         .par_chunks(BLOCK)
         .enumerate()
-        .flat_map_iter(|(b, block)| {
-            let first = b * BLOCK;
-            block
+        .flat_map_iter(|(b, bounds)| {
+            let block = visit.block(b * BLOCK, bounds.len());
+            bounds
                 .iter()
                 .enumerate()
-                .filter(|&(i, u)| !u.is_nan() && sampler.keeps(memory.sample_tag(first + i)))
-                .map(move |(i, _)| first + i)
+                .map(|(i, u)| (block.row(i), u))
+                .filter(|&(row, u)| !u.is_nan() && sampler.keeps(memory.sample_tag(row)))
+                .map(|(row, _)| row)
                 .collect::<Vec<_>>()
         })
         .collect();
@@ -754,7 +875,103 @@ mod tests {
         }
     }
 
+    /// A filter that names a partition: `rows` must hold every row `test`
+    /// admits.
+    struct Parted<'a> {
+        rows: Vec<usize>,
+        test: &'a (dyn Fn(usize) -> bool + Sync),
+    }
+
+    impl RowFilter for Parted<'_> {
+        fn test(&self, row: usize) -> bool {
+            (self.test)(row)
+        }
+        fn partition(&self) -> Option<&[usize]> {
+            Some(&self.rows)
+        }
+    }
+
+    /// The two scans agree bit for bit: the same rows, scores, depths and
+    /// null model.
+    fn assert_same_bits(a: &ScalScan, b: &ScalScan) {
+        assert_eq!(a.eligible, b.eligible);
+        assert_eq!(a.null.samples, b.null.samples);
+        assert_eq!(a.null.location.to_bits(), b.null.location.to_bits());
+        assert_eq!(a.hits.len(), b.hits.len());
+        for (x, y) in a.hits.iter().zip(&b.hits) {
+            assert_eq!((x.row, x.depth), (y.row, y.depth));
+            assert_eq!(x.score.to_bits(), y.score.to_bits(), "row {}", x.row);
+            assert_eq!(x.cosine.to_bits(), y.cosine.to_bits());
+            assert_eq!(
+                x.scene_compatibility.map(f32::to_bits),
+                y.scene_compatibility.map(f32::to_bits)
+            );
+        }
+    }
+
+    /// A partitioned scan against the full one, in both passes.
+    fn check_partition(m: &VecMemory, history: &[Features], params: &VprParams, rows: Vec<usize>) {
+        let member: Vec<bool> = (0..m.descriptors().len())
+            .map(|r| rows.binary_search(&r).is_ok())
+            .collect();
+        let test = |row: usize| member[row] && row % 5 != 2;
+        let parted = Parted { rows, test: &test };
+        let query = ScalQuery {
+            history: history.iter().collect(),
+        };
+        for mode in [ScanMode::Exact, ScanMode::Compressed] {
+            let params = VprParams {
+                scan: mode,
+                ..params.clone()
+            };
+            let full = scal_scan(&params, &query, m, &test);
+            assert_same_bits(&scal_scan(&params, &query, m, &parted), &full);
+        }
+    }
+
+    #[test]
+    fn a_partition_gives_the_full_scans_answer() {
+        // Tracks are runs of 7 rows; "maps" of whole tracks, over several
+        // blocks, and a partition that cuts tracks (chain rows outside it).
+        let m = clustered(20_000, 48, 3);
+        let history: Vec<Features> = [5, 4, 3].iter().map(|&r| m.features(r).clone()).collect();
+        let maps: Vec<usize> = (0..20_000)
+            .filter(|i| (i / 7) % 5 == 1 || (i / 7) % 5 == 3)
+            .collect();
+        let cut: Vec<usize> = (0..20_000).filter(|i| i % 3 != 0).collect();
+        for top_k in [1, 25, 300] {
+            let params = VprParams {
+                top_k,
+                ..VprParams::default()
+            };
+            check_partition(&m, &history, &params, maps.clone());
+            check_partition(&m, &history, &params, cut.clone());
+            check_partition(&m, &history, &params, vec![]);
+        }
+        // In a file, a partition is read in runs of consecutive rows.
+        let mut m = m;
+        let dir = tempfile::tempdir().unwrap();
+        m.move_descriptors_to_file(dir.path()).unwrap();
+        check_partition(&m, &history, &VprParams::default(), maps);
+    }
+
     proptest! {
+        #[test]
+        fn a_partition_never_changes_the_answer(
+            m in memory_strategy(6, 80),
+            history in prop::collection::vec((unit_vector(6), scene_strategy()), 1..4),
+            member in prop::collection::vec(any::<bool>(), 80),
+            k in 1usize..30,
+        ) {
+            let history: Vec<Features> = history
+                .into_iter()
+                .map(|(descriptor, scene)| Features { descriptor, scene, ..Features::default() })
+                .collect();
+            let params = VprParams { top_k: k, ..VprParams::default() };
+            let rows = (0..m.descriptors().len()).filter(|&r| member[r]).collect();
+            check_partition(&m, &history, &params, rows);
+        }
+
         #[test]
         fn compressed_equals_exact(
             m in memory_strategy(6, 80),

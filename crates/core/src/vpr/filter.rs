@@ -1,0 +1,32 @@
+//! What a scan asks of the eligibility rule: a test per row, and which rows
+//! can pass at all.
+//!
+//! The rule itself is [`eligibility`](super::eligibility) (compiled for the
+//! index in `row_ids`). A scan needs only to test a row; but to cost what a
+//! query may return rather than the whole store, it must also know where
+//! the rows that can pass are. A filter that knows (the index's, from its
+//! per-map tracks) names them as a *partition*, and the scan visits only
+//! those; a plain closure names none, and the scan visits every row. Either
+//! way the answer is the same: the partition only leaves out rows the test
+//! refuses.
+
+/// Which stored rows a query may be answered from.
+pub trait RowFilter: Sync {
+    /// Whether `row` may be proposed.
+    fn test(&self, row: usize) -> bool;
+
+    /// The rows outside of which [`RowFilter::test`] is false, sorted
+    /// ascending; `None`: any row may pass, so a scan visits every row.
+    /// A row's temporal predecessors must be in it whenever the row is (the
+    /// index's partitions are whole maps, and a track never leaves its
+    /// map); a scan that finds one missing still scores it, only slower.
+    fn partition(&self) -> Option<&[usize]> {
+        None
+    }
+}
+
+impl<F: Fn(usize) -> bool + Sync + ?Sized> RowFilter for F {
+    fn test(&self, row: usize) -> bool {
+        self(row)
+    }
+}
