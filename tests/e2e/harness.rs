@@ -121,6 +121,11 @@ impl Server {
         }
     }
 
+    /// The server process's id.
+    pub fn pid(&self) -> u32 {
+        self.child.as_ref().expect("server running").id()
+    }
+
     pub async fn client(&self) -> PlaceRecognitionClient<Channel> {
         PlaceRecognitionClient::connect(self.url.clone())
             .await

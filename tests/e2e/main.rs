@@ -11,6 +11,7 @@ mod admission;
 mod auth;
 mod cli;
 mod cluster;
+mod cpu;
 mod detector;
 mod durability;
 mod errors;

@@ -1,7 +1,12 @@
-//! `humem bench perception`: how long each model takes per batch size, and
-//! what batching gains when many clients send images at once, measured
-//! against unbatched inference in the same run, on real images.
+//! `humem bench perception`: what each model costs a core per keyframe in
+//! fp32 and int8, how long each takes per batch size, and what batching
+//! gains when many clients send images at once, measured against unbatched
+//! inference in the same run, on real images.
 //!
+//! Part 0 runs each model alone on one intra-op thread, batch 1, at both
+//! precisions, and reports the process's CPU time per call (user and
+//! system, `getrusage`): the core time a keyframe takes from the SLAM
+//! process beside it, which wall time on a busy machine does not show.
 //! Part 1 calls each model directly (no queue) with batches of 1, 4 and 8
 //! inputs, and text detection at the camera's aspect ratio against the
 //! fixed 640x480 letterbox it replaced. Part 2 runs the whole perception pipeline for concurrent
@@ -16,11 +21,12 @@ use std::time::{Duration, Instant};
 use anyhow::{bail, Context};
 
 use humem_perception::batcher::BatchModel;
-use humem_perception::config::{OcrConfig, PerceptionConfig};
+use humem_perception::config::{OcrConfig, PerceptionConfig, Precision};
 use humem_perception::geometry::Rect;
 use humem_perception::image::{self as img, EncodedImage, Encoding};
 use humem_perception::model::{ImageModel, Planes};
 use humem_perception::ocr::{self, canvas, OcrModels};
+use humem_perception::runtime::SessionOptions;
 use humem_perception::{runtime, ImageInput, Perception};
 use humem_server::config::Config;
 
@@ -206,6 +212,7 @@ pub async fn perception(config: Config, args: PerceptionBench) -> anyhow::Result
         p.provider,
         p.session_options().intra_threads
     );
+    core_time(p, &decoded, args.repeats)?;
     models_alone(p, &decoded, args.repeats)?;
     let batched_timings = pipeline_under_load(&config, &images, &args).await?;
     stage_table(&batched_timings);
@@ -228,6 +235,170 @@ fn images_dir(images: Option<PathBuf>) -> anyhow::Result<PathBuf> {
             default
         }
     })
+}
+
+/// Mean core milliseconds per call of `model` on batches of one input
+/// made by `input`, after two warm-up calls.
+fn core_ms<M: BatchModel>(
+    model: &mut M,
+    input: &dyn Fn(usize) -> M::Input,
+    repeats: usize,
+) -> anyhow::Result<f64> {
+    for i in 0..2 {
+        model.run(vec![input(i)])?;
+    }
+    let started = humem_perception::cpu::process_cpu_time();
+    for i in 0..repeats {
+        model.run(vec![input(i)])?;
+    }
+    Ok((humem_perception::cpu::process_cpu_time() - started).as_secs_f64() * 1e3 / repeats as f64)
+}
+
+/// Part 0: core milliseconds per keyframe of each model at each precision
+/// (one intra-op thread, batch 1). A keyframe costs one descriptor (+
+/// scene) inference, one text detection and one recognition per text
+/// line; the sum counts one line. Precisions whose file is missing are
+/// left out.
+fn core_time(
+    p: &PerceptionConfig,
+    decoded: &[image::RgbImage],
+    repeats: usize,
+) -> anyhow::Result<()> {
+    let env = runtime::environment(&runtime::library_path(
+        p.onnxruntime.as_deref(),
+        &p.models_dir,
+    ))?;
+    let options = SessionOptions {
+        intra_threads: 1,
+        ..p.session_options()
+    };
+    let precisions = [Precision::Fp32, Precision::Int8];
+    // [model][precision]: core ms, None where the file is missing.
+    let mut table: Vec<(&str, [Option<f64>; 2])> = Vec::new();
+    let d = &p.descriptor;
+    let global_inputs = descriptor_inputs(p, decoded);
+    let mut row = [None; 2];
+    for (slot, &precision) in row.iter_mut().zip(&precisions) {
+        let Ok(path) = p.model_file(&d.model, precision) else {
+            continue;
+        };
+        let mut outputs = vec![d.output.clone()];
+        if let Some(s) = p.scene.as_ref().filter(|s| s.model == d.model) {
+            outputs.push(s.output.clone());
+        }
+        let mut model = ImageModel::new(
+            "descriptor",
+            runtime::session(&env, &path, options)?,
+            &d.input,
+            &outputs,
+            Some([d.width as usize, d.height as usize]),
+        )?;
+        *slot = Some(core_ms(
+            &mut model,
+            &|i| global_inputs[i % global_inputs.len()].clone(),
+            repeats,
+        )?);
+    }
+    table.push(("descriptor+scene", row));
+    if let Some(o) = &p.ocr {
+        let dictionary = Arc::new(ocr::ctc::Dictionary::load(&p.resolve(&o.dictionary))?);
+        let det_inputs = detector_inputs(o, decoded);
+        let lines = line_inputs(o, decoded);
+        let (mut det_row, mut rec_row) = ([None; 2], [None; 2]);
+        for (k, &precision) in precisions.iter().enumerate() {
+            let (Ok(det), Ok(rec)) = (
+                p.model_file(&o.detector, precision),
+                p.model_file(&o.recognizer, precision),
+            ) else {
+                continue;
+            };
+            let sessions = vec![(
+                runtime::session(&env, &det, options)?,
+                runtime::session(&env, &rec, options)?,
+            )];
+            let mut models = OcrModels::new(sessions, o, dictionary.clone())?;
+            det_row[k] = Some(core_ms(
+                &mut models.detectors[0],
+                &|i| det_inputs[i % det_inputs.len()].clone(),
+                repeats,
+            )?);
+            rec_row[k] = Some(core_ms(
+                &mut models.recognizers[0],
+                &|i| copy_line(&lines[i % lines.len()]),
+                repeats,
+            )?);
+        }
+        table.push(("ocr detection", det_row));
+        table.push(("ocr recognition", rec_row));
+    }
+    let sum = |k: usize| table.iter().map(|(_, r)| r[k]).sum::<Option<f64>>();
+    let total = [sum(0), sum(1)];
+    println!("\n0. core milliseconds per keyframe, one intra-op thread, batch 1 (CPU time of the process)");
+    println!("| model | fp32 | int8 | int8 / fp32 |");
+    println!("| --- | --- | --- | --- |");
+    let cell = |v: Option<f64>| v.map_or("-".to_string(), |v| format!("{v:.1}"));
+    for (name, r) in table
+        .iter()
+        .chain([("per keyframe (one text line)", total)].iter())
+    {
+        let ratio = r[0]
+            .zip(r[1])
+            .map_or("-".to_string(), |(a, b)| format!("{:.2}x", b / a));
+        println!("| {name} | {} | {} | {ratio} |", cell(r[0]), cell(r[1]));
+    }
+    Ok(())
+}
+
+/// The descriptor model's inputs for `decoded`.
+fn descriptor_inputs(p: &PerceptionConfig, decoded: &[image::RgbImage]) -> Vec<Planes> {
+    let d = &p.descriptor;
+    decoded
+        .iter()
+        .map(|i| {
+            let resized = img::resize(i, d.width, d.height);
+            let mut data = Vec::new();
+            img::append_chw(&resized, img::Channels::Rgb, d.mean, d.std, &mut data);
+            Planes {
+                width: d.width as usize,
+                height: d.height as usize,
+                data,
+            }
+        })
+        .collect()
+}
+
+/// The text detector's inputs: each whole image at the configured long
+/// side.
+fn detector_inputs(o: &OcrConfig, decoded: &[image::RgbImage]) -> Vec<Planes> {
+    decoded
+        .iter()
+        .map(|i| canvas::detector_input(i, whole(i), o.detector_long_side).0)
+        .collect()
+}
+
+/// Text lines for the recogniser: a strip of each image, 6:1 like a short
+/// sign.
+fn line_inputs(o: &OcrConfig, decoded: &[image::RgbImage]) -> Vec<ocr::LineInput> {
+    decoded
+        .iter()
+        .map(|i| {
+            let (w, h) = (i.width() as f32, i.height() as f32);
+            let quad = [
+                [0.2 * w, 0.45 * h],
+                [0.8 * w, 0.45 * h],
+                [0.8 * w, 0.55 * h],
+                [0.2 * w, 0.55 * h],
+            ];
+            ocr::line_input(i, quad, o.line_height, o.max_line_width)
+        })
+        .collect()
+}
+
+fn copy_line(l: &ocr::LineInput) -> ocr::LineInput {
+    ocr::LineInput {
+        width: l.width,
+        data: l.data.clone(),
+    }
 }
 
 /// Part 1: each model alone, called directly, per batch size; then text
@@ -259,19 +430,7 @@ fn models_alone(
         &outputs,
         Some([d.width as usize, d.height as usize]),
     )?;
-    let global_inputs: Vec<Planes> = decoded
-        .iter()
-        .map(|i| {
-            let resized = img::resize(i, d.width, d.height);
-            let mut data = Vec::new();
-            img::append_chw(&resized, img::Channels::Rgb, d.mean, d.std, &mut data);
-            Planes {
-                width: d.width as usize,
-                height: d.height as usize,
-                data,
-            }
-        })
-        .collect();
+    let global_inputs = descriptor_inputs(p, decoded);
     time_model(
         "descriptor+scene",
         &mut global,
@@ -285,40 +444,18 @@ fn models_alone(
             runtime::session(&env, &p.resolve(&o.recognizer), options)?,
         )];
         let mut models = OcrModels::new(sessions, o, Arc::new(dictionary))?;
-        let det_inputs: Vec<Planes> = decoded
-            .iter()
-            .map(|i| canvas::detector_input(i, whole(i), o.detector_long_side).0)
-            .collect();
+        let det_inputs = detector_inputs(o, decoded);
         time_model(
             "ocr detection",
             &mut models.detectors[0],
             &|i| det_inputs[i % det_inputs.len()].clone(),
             repeats,
         )?;
-        // Text lines: a strip of each image, 6:1 like a short sign.
-        let lines: Vec<ocr::LineInput> = decoded
-            .iter()
-            .map(|i| {
-                let (w, h) = (i.width() as f32, i.height() as f32);
-                let quad = [
-                    [0.2 * w, 0.45 * h],
-                    [0.8 * w, 0.45 * h],
-                    [0.8 * w, 0.55 * h],
-                    [0.2 * w, 0.55 * h],
-                ];
-                ocr::line_input(i, quad, o.line_height, o.max_line_width)
-            })
-            .collect();
+        let lines = line_inputs(o, decoded);
         time_model(
             "ocr recognition",
             &mut models.recognizers[0],
-            &|i| {
-                let l = &lines[i % lines.len()];
-                ocr::LineInput {
-                    width: l.width,
-                    data: l.data.clone(),
-                }
-            },
+            &|i| copy_line(&lines[i % lines.len()]),
             repeats,
         )?;
         compare_detection_shapes(&mut models.detectors[0], decoded, &det_inputs, o, repeats)?;

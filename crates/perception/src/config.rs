@@ -13,7 +13,7 @@ use std::time::Duration;
 use serde::{Deserialize, Serialize};
 
 use super::batcher::BatchConfig;
-use super::runtime::{ExecutionProvider, SessionOptions};
+use super::runtime::{ExecutionProvider, RuntimeError, SessionOptions};
 
 /// Normalisation of EfficientNet-Lite: mean 127, std 128 on 0..255.
 const LITE_MEAN: [f32; 3] = [127.0 / 255.0; 3];
@@ -24,6 +24,39 @@ const EFFICIENTNET: &str = "efficientnet-lite0/efficientnet_lite0.onnx";
 /// 0.60 / 0.95 / 0.4, 384x288 gives 0.72 / 0.95 / 0.4, 512x384 gives
 /// 0.73 / 0.93 / 0.2, at about 0.5x the cost of 512x384.
 const DESCRIPTOR_SIZE: [u32; 2] = [384, 288];
+/// Precision of the default descriptor (and scene) model.
+const DESCRIPTOR_PRECISION: Precision = Precision::Fp32;
+/// Precision of the default text detector.
+const OCR_DETECTOR_PRECISION: Precision = Precision::Fp32;
+/// Precision of the default line recogniser.
+const OCR_RECOGNIZER_PRECISION: Precision = Precision::Fp32;
+
+/// Which version of a model runs: the fp32 file as configured, or its int8
+/// quantisation beside it (`name.onnx` → `name.int8.onnx`, what
+/// `scripts/setup-models.sh` makes for the shipped models and
+/// `tools/quantize_models.py` for others).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, Serialize, Deserialize)]
+#[serde(rename_all = "lowercase")]
+pub enum Precision {
+    /// The configured file.
+    #[default]
+    Fp32,
+    /// Its int8 (QDQ) quantisation.
+    Int8,
+}
+
+impl Precision {
+    /// The file of `model` at this precision.
+    pub fn file(self, model: &Path) -> PathBuf {
+        match self {
+            Precision::Fp32 => model.to_path_buf(),
+            Precision::Int8 => {
+                let stem = model.file_stem().unwrap_or_default().to_string_lossy();
+                model.with_file_name(format!("{stem}.int8.onnx"))
+            }
+        }
+    }
+}
 
 /// The `[perception]` section.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
@@ -44,6 +77,11 @@ pub struct PerceptionConfig {
     /// least 1), since the descriptor and OCR models run at the same time
     /// and oversubscribed cores slowed both in `humem bench perception`.
     pub intra_threads: usize,
+    /// Nice value of every perception thread (model workers and ONNX
+    /// Runtime's pools), 0 to 19: above 0, the SLAM process beside it wins
+    /// the cores whenever both want them (Linux; see [`crate::cpu`]).
+    /// The gRPC service and the store keep their priority.
+    pub nice: i32,
     /// Sessions (and worker threads) per model.
     pub workers: usize,
     /// Most images (or text lines) per inference; 0 = 1 on the CPU, 8 with
@@ -78,6 +116,7 @@ impl Default for PerceptionConfig {
             onnxruntime: None,
             provider: ExecutionProvider::Cpu,
             intra_threads: 0,
+            nice: 0,
             workers: 1,
             max_batch: 0,
             max_wait_ms: 2,
@@ -101,6 +140,7 @@ fn efficientnet(output: &str) -> ImageModelConfig {
         mean: LITE_MEAN,
         std: LITE_STD,
         output: output.into(),
+        precision: DESCRIPTOR_PRECISION,
     }
 }
 
@@ -112,6 +152,16 @@ impl PerceptionConfig {
         } else {
             self.models_dir.join(path)
         }
+    }
+
+    /// The file of `model` at `precision`, resolved; an int8 file that is
+    /// missing is named as such, with how to make it.
+    pub fn model_file(&self, model: &Path, precision: Precision) -> Result<PathBuf, RuntimeError> {
+        let path = self.resolve(&precision.file(model));
+        if precision == Precision::Int8 && !path.exists() {
+            return Err(RuntimeError::QuantizedMissing(path));
+        }
+        Ok(path)
     }
 
     /// How every model's requests are batched: `max_batch` resolved for the
@@ -160,6 +210,13 @@ impl PerceptionConfig {
         if self.workers == 0 {
             return Err("perception.workers must be at least 1".into());
         }
+        if !(0..=crate::cpu::MAX_NICE).contains(&self.nice) {
+            return Err(format!(
+                "perception.nice must be between 0 and {} (a lower priority only), not {}",
+                crate::cpu::MAX_NICE,
+                self.nice
+            ));
+        }
         Ok(())
     }
 }
@@ -184,6 +241,9 @@ pub struct ImageModelConfig {
     /// Output tensor name: `[N, D]` descriptor, or `[N, C]` class
     /// probabilities for the scene role.
     pub output: String,
+    /// `fp32` (the file as named) or `int8` (its quantisation beside it).
+    #[serde(default)]
+    pub precision: Precision,
 }
 
 impl ImageModelConfig {
@@ -195,6 +255,7 @@ impl ImageModelConfig {
             && self.height == other.height
             && self.mean == other.mean
             && self.std == other.std
+            && self.precision == other.precision
     }
 
     fn validate(&self) -> Result<(), String> {
@@ -261,6 +322,9 @@ pub struct DetectorConfig {
     /// Classes on which text is read (e.g. billboards, signs); empty: all.
     #[serde(default)]
     pub text_classes: Vec<String>,
+    /// `fp32` (the file as named) or `int8` (its quantisation beside it).
+    #[serde(default)]
+    pub precision: Precision,
 }
 
 fn default_image_input() -> String {
@@ -302,6 +366,10 @@ pub struct OcrConfig {
     pub detector: PathBuf,
     /// ONNX file of the line recogniser (CRNN with CTC).
     pub recognizer: PathBuf,
+    /// `fp32` or `int8` for the detector's file.
+    pub detector_precision: Precision,
+    /// `fp32` or `int8` for the recogniser's file.
+    pub recognizer_precision: Precision,
     /// Character list index-aligned with the recogniser's classes.
     pub dictionary: PathBuf,
     /// Text detection input: the region (the whole image, or an object's
@@ -330,6 +398,8 @@ impl Default for OcrConfig {
         OcrConfig {
             detector: PathBuf::from("ocr/ppocrv5_det.onnx"),
             recognizer: PathBuf::from("ocr/ppocrv5_rec.onnx"),
+            detector_precision: OCR_DETECTOR_PRECISION,
+            recognizer_precision: OCR_RECOGNIZER_PRECISION,
             dictionary: PathBuf::from("ocr/ppocr_keys_v5.txt"),
             detector_long_side: DETECTOR_LONG_SIDE,
             line_height: 48,

@@ -20,11 +20,14 @@
 //! - [`objects`]: the object detector role (a YOLO export), letterboxing
 //!   and objects in image pixels;
 //! - [`yolo`]: decoding YOLO outputs, NMS and instance masks;
-//! - [`ocr`]: PP-OCRv5 text detection and recognition.
+//! - [`ocr`]: PP-OCRv5 text detection and recognition;
+//! - [`cpu`]: the nice value perception's threads run at, and the CPU
+//!   time the process uses.
 
 pub mod appearance;
 pub mod batcher;
 pub mod config;
+pub mod cpu;
 pub mod geometry;
 pub mod image;
 pub mod model;
@@ -142,7 +145,25 @@ impl Perception {
 
     /// [`Perception::load`], with every model's queue depth and batch sizes
     /// reported to `observer` (queues named by model role).
+    ///
+    /// The models are loaded on a thread at `config.nice`
+    /// ([`cpu::run_at_nice`]), so that their inference threads run at
+    /// that priority.
     pub fn load_observed(
+        config: &PerceptionConfig,
+        scene_top_k: usize,
+        observer: SharedObserver,
+    ) -> Result<Perception, RuntimeError> {
+        cpu::run_at_nice(config.nice, || {
+            Self::load_models(config, scene_top_k, observer)
+        })
+        .map_err(|e| RuntimeError::Priority {
+            nice: config.nice,
+            message: e.to_string(),
+        })?
+    }
+
+    fn load_models(
         config: &PerceptionConfig,
         scene_top_k: usize,
         observer: SharedObserver,
@@ -158,7 +179,7 @@ impl Perception {
             .as_ref()
             .is_some_and(|s| s.shares_input_with(&config.descriptor));
         let load_role = |name: &'static str, m: &ImageModelConfig, outputs: Vec<String>| {
-            let path = config.resolve(&m.model);
+            let path = config.model_file(&m.model, m.precision)?;
             let models = (0..workers)
                 .map(|_| {
                     let session = runtime::session(&env, &path, options)?;
@@ -196,20 +217,25 @@ impl Perception {
                         message: e.to_string(),
                     }
                 })?;
+                let detector_path =
+                    config.model_file(&ocr_config.detector, ocr_config.detector_precision)?;
+                let recognizer_path =
+                    config.model_file(&ocr_config.recognizer, ocr_config.recognizer_precision)?;
                 let sessions = (0..workers)
                     .map(|_| {
                         Ok((
-                            runtime::session(&env, &config.resolve(&ocr_config.detector), options)?,
-                            runtime::session(
-                                &env,
-                                &config.resolve(&ocr_config.recognizer),
-                                options,
-                            )?,
+                            runtime::session(&env, &detector_path, options)?,
+                            runtime::session(&env, &recognizer_path, options)?,
                         ))
                     })
                     .collect::<Result<Vec<_>, RuntimeError>>()?;
                 let models = OcrModels::new(sessions, ocr_config, Arc::new(dictionary))?;
-                tracing::info!(role = "ocr", "models loaded");
+                tracing::info!(
+                    role = "ocr",
+                    detector = %detector_path.display(),
+                    recognizer = %recognizer_path.display(),
+                    "models loaded"
+                );
                 Some(Ocr::new(models, ocr_config, batching, &observer))
             }
         };

@@ -121,7 +121,7 @@ impl Detector {
         batching: BatchConfig,
         observer: &SharedObserver,
     ) -> Result<Detector, RuntimeError> {
-        let path = perception.resolve(&config.model);
+        let path = perception.model_file(&config.model, config.precision)?;
         let mut outputs = vec![config.output.clone()];
         outputs.extend(config.masks_output.clone());
         let models = (0..perception.workers.max(1))

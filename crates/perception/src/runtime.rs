@@ -45,6 +45,18 @@ pub enum RuntimeError {
     /// A configured model file does not exist.
     #[error("model file {0} does not exist; run scripts/setup-models.sh or fix the perception configuration")]
     ModelMissing(PathBuf),
+    /// A model is configured with `precision = "int8"` and its quantised
+    /// file is not beside the fp32 one.
+    #[error("int8 model {0} does not exist; scripts/setup-models.sh makes it for the shipped models, tools/quantize_models.py for your own, or set the model's precision to \"fp32\"")]
+    QuantizedMissing(PathBuf),
+    /// The perception threads' nice value could not be set.
+    #[error("setting perception.nice = {nice}: {message}")]
+    Priority {
+        /// The configured nice value.
+        nice: i32,
+        /// The system's message.
+        message: String,
+    },
     /// A model file (or the OCR dictionary) exists but could not be loaded.
     #[error("loading model {path}: {message}")]
     Model {
