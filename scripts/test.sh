@@ -1,7 +1,8 @@
 #!/usr/bin/env bash
 # The project's test command (README "Test"): installs the Debian packages
 # and the models if they are missing, checks the model converter on real
-# pictures, then formatting, lints and every Rust test, unit and end-to-end (the e2e tests start the
+# pictures and the int8 models against the fp32 ones, then formatting, lints
+# and every Rust test, unit and end-to-end (the e2e tests start the
 # real `humem` binary and run the real models), then the C++ client's tests
 # against that binary, and the deployment files checked with the real
 # Prometheus, promtool and systemd-analyze.
@@ -14,6 +15,7 @@ echo "== models (scripts/setup-models.sh)"
 scripts/setup-models.sh
 echo "== model tools tests"
 models/.venv/bin/python tools/test_efficientnet_to_onnx.py models
+models/.venv/bin/python tools/test_quantize_models.py models
 models/.venv/bin/python tools/test_make_tiny_yolo.py
 echo "== cargo fmt --check"
 cargo fmt --all -- --check

@@ -307,3 +307,71 @@ async fn rtabmap_loop_revisits_are_recognised_from_images() {
     assert!(s1 >= 0.95, "SCAL R@1 {s1:.3}");
     assert!(r1 >= 0.95, "full R@1 {r1:.3}");
 }
+
+/// The OCR's first look (`perception.ocr.preview_long_side`): a board
+/// with text is still read, and an image without text skips the full
+/// detection and recognition.
+#[tokio::test]
+async fn the_first_look_skips_images_without_text_and_reads_the_rest() {
+    use humem_perception::batcher::BatchConfig;
+    use humem_perception::config::{OcrConfig, PerceptionConfig};
+    use humem_perception::ocr::{ctc::Dictionary, Ocr, OcrModels, OcrTimes};
+    use humem_perception::runtime;
+    use std::sync::Arc;
+
+    let mut perception = PerceptionConfig {
+        models_dir: crate::harness::models_dir(),
+        ..PerceptionConfig::default()
+    };
+    if !perception.models_dir.join("lib").is_dir() {
+        eprintln!("skipped: models not installed (scripts/setup-models.sh)");
+        return;
+    }
+    let config = OcrConfig {
+        preview_long_side: 256,
+        ..OcrConfig::default()
+    };
+    perception.ocr = Some(config.clone());
+    let env = runtime::environment(&runtime::library_path(None, &perception.models_dir)).unwrap();
+    let options = perception.session_options();
+    let sessions = vec![(
+        runtime::session(&env, &perception.resolve(&config.detector), options).unwrap(),
+        runtime::session(&env, &perception.resolve(&config.recognizer), options).unwrap(),
+    )];
+    let dictionary = Arc::new(Dictionary::load(&perception.resolve(&config.dictionary)).unwrap());
+    let models = OcrModels::new(sessions, &config, dictionary).unwrap();
+    let ocr = Ocr::new(
+        models,
+        &config,
+        BatchConfig {
+            max_batch: 1,
+            max_wait: std::time::Duration::ZERO,
+            queue: 8,
+        },
+        &humem_core::observe::unobserved(),
+    );
+    let decode = |png: Vec<u8>| Arc::new(image::load_from_memory(&png).unwrap().to_rgb8());
+
+    let mut times = OcrTimes::default();
+    let lines = ocr
+        .read(
+            decode(rendered_text(&["EXIT 42", "MAIN ST"])),
+            None,
+            &mut times,
+        )
+        .await
+        .unwrap();
+    assert!(!times.skipped, "text found at first look");
+    let read: Vec<String> = lines.iter().map(|l| l.text.to_uppercase()).collect();
+    assert!(
+        read.iter().any(|t| t.contains("EXIT")) && read.iter().any(|t| t.contains("MAIN")),
+        "{read:?}"
+    );
+
+    let mut times = OcrTimes::default();
+    let lines = ocr
+        .read(decode(rendered_text(&[])), None, &mut times)
+        .await
+        .unwrap();
+    assert!(times.skipped && lines.is_empty(), "{lines:?}");
+}

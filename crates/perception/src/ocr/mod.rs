@@ -53,6 +53,9 @@ pub struct OcrTimes {
     pub detection: Duration,
     /// Line recognition: the slowest line's queueing plus inference.
     pub recognition: Duration,
+    /// The first look at the preview size found no text, and the
+    /// detection at full size was skipped.
+    pub skipped: bool,
 }
 
 /// The recogniser as a batch model: lines of one height and any width,
@@ -260,45 +263,19 @@ impl Ocr {
         if region.width() < 4.0 || region.height() < 4.0 {
             return Ok(Vec::new());
         }
-        let long_side = self.config.detector_long_side;
-        let (det_input, placement) = {
-            let image = image.clone();
-            tokio::task::spawn_blocking(move || canvas::detector_input(&image, region, long_side))
-                .await
-                .map_err(|e| runtime(format!("text detection preprocessing failed: {e}")))?
-        };
-        let detected = self.detector.infer(det_input).await?;
-        times.detection += detected.inference + detected.queued;
-        let Some((shape, prob)) = detected.output.0.into_iter().next() else {
-            return Ok(Vec::new());
-        };
-        let (mh, mw) = match shape[..] {
-            [1, mh, mw] | [mh, mw] => (mh, mw),
-            _ => return Err(runtime(format!("text detection output shape {shape:?}"))),
-        };
-        // The map has the input's size; map pixels back to image pixels.
-        let [iw, ih] = placement.input.map(|s| s as f32);
-        let (sx, sy) = (
-            iw / mw as f32 / placement.scale,
-            ih / mh as f32 / placement.scale,
-        );
-        let mut boxes = db::text_boxes(&prob, mw, mh, &self.params);
-        boxes.truncate(self.config.max_lines);
-        let to_image = |[x, y]: [f32; 2]| [x * sx + region.x0, y * sy + region.y0];
-        let found: Vec<(Rect, [[f32; 2]; 4], f32)> = boxes
-            .into_iter()
-            .map(|b| {
-                let r = b.rect.scale(sx, sy);
-                let r = Rect {
-                    x0: r.x0 + region.x0,
-                    y0: r.y0 + region.y0,
-                    x1: r.x1 + region.x0,
-                    y1: r.y1 + region.y0,
-                };
-                (r.clamp(w, h), b.quad.map(to_image), b.score)
-            })
-            .filter(|(r, _, _)| r.width() >= 2.0 && r.height() >= 2.0)
-            .collect();
+        // A first look at the preview size: where it finds no text, the
+        // detection at full size would find little, and is skipped.
+        let preview = self.config.preview_long_side;
+        if preview > 0 && preview < self.config.detector_long_side {
+            let glimpse = self.detect(&image, region, preview, times).await?;
+            if glimpse.is_empty() {
+                times.skipped = true;
+                return Ok(Vec::new());
+            }
+        }
+        let found = self
+            .detect(&image, region, self.config.detector_long_side, times)
+            .await?;
         if found.is_empty() {
             return Ok(Vec::new());
         }
@@ -338,7 +315,62 @@ impl Ocr {
         times.recognition += slowest;
         Ok(lines)
     }
+
+    /// The text boxes found in `region` of `image` with the detector's
+    /// input at `long_side`: image-pixel rectangles, quads and scores.
+    async fn detect(
+        &self,
+        image: &Arc<RgbImage>,
+        region: Rect,
+        long_side: u32,
+        times: &mut OcrTimes,
+    ) -> Result<Vec<Found>, BatchError> {
+        let (w, h) = (image.width() as f32, image.height() as f32);
+        let (det_input, placement) = {
+            let image = image.clone();
+            tokio::task::spawn_blocking(move || canvas::detector_input(&image, region, long_side))
+                .await
+                .map_err(|e| runtime(format!("text detection preprocessing failed: {e}")))?
+        };
+        let detected = self.detector.infer(det_input).await?;
+        times.detection += detected.inference + detected.queued;
+        let Some((shape, prob)) = detected.output.0.into_iter().next() else {
+            return Ok(Vec::new());
+        };
+        let (mh, mw) = match shape[..] {
+            [1, mh, mw] | [mh, mw] => (mh, mw),
+            _ => return Err(runtime(format!("text detection output shape {shape:?}"))),
+        };
+        // The map has the input's size; map pixels back to image pixels.
+        let [iw, ih] = placement.input.map(|s| s as f32);
+        let (sx, sy) = (
+            iw / mw as f32 / placement.scale,
+            ih / mh as f32 / placement.scale,
+        );
+        let mut boxes = db::text_boxes(&prob, mw, mh, &self.params);
+        boxes.truncate(self.config.max_lines);
+        let to_image = |[x, y]: [f32; 2]| [x * sx + region.x0, y * sy + region.y0];
+        let found: Vec<Found> = boxes
+            .into_iter()
+            .map(|b| {
+                let r = b.rect.scale(sx, sy);
+                let r = Rect {
+                    x0: r.x0 + region.x0,
+                    y0: r.y0 + region.y0,
+                    x1: r.x1 + region.x0,
+                    y1: r.y1 + region.y0,
+                };
+                (r.clamp(w, h), b.quad.map(to_image), b.score)
+            })
+            .filter(|(r, _, _)| r.width() >= 2.0 && r.height() >= 2.0)
+            .collect();
+        Ok(found)
+    }
 }
+
+/// A detected text box: its rectangle and quad in image pixels, and its
+/// score.
+type Found = (Rect, [[f32; 2]; 4], f32);
 
 fn runtime(message: String) -> BatchError {
     BatchError::Runtime(RuntimeError::Run {
