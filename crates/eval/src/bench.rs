@@ -288,7 +288,7 @@ fn core_time(
         }
         let mut model = ImageModel::new(
             "descriptor",
-            runtime::session(&env, &path, options)?,
+            runtime::session(&env, &path, precision.options(options))?,
             &d.input,
             &outputs,
             Some([d.width as usize, d.height as usize]),
@@ -313,8 +313,8 @@ fn core_time(
                 continue;
             };
             let sessions = vec![(
-                runtime::session(&env, &det, options)?,
-                runtime::session(&env, &rec, options)?,
+                runtime::session(&env, &det, precision.options(options))?,
+                runtime::session(&env, &rec, precision.options(options))?,
             )];
             let mut models = OcrModels::new(sessions, o, dictionary.clone())?;
             det_row[k] = Some(core_ms(
@@ -425,7 +425,11 @@ fn models_alone(
     }
     let mut global = ImageModel::new(
         "descriptor",
-        runtime::session(&env, &p.resolve(&d.model), options)?,
+        runtime::session(
+            &env,
+            &p.model_file(&d.model, d.precision)?,
+            d.precision.options(options),
+        )?,
         &d.input,
         &outputs,
         Some([d.width as usize, d.height as usize]),
@@ -440,8 +444,16 @@ fn models_alone(
     if let Some(o) = &p.ocr {
         let dictionary = ocr::ctc::Dictionary::load(&p.resolve(&o.dictionary))?;
         let sessions = vec![(
-            runtime::session(&env, &p.resolve(&o.detector), options)?,
-            runtime::session(&env, &p.resolve(&o.recognizer), options)?,
+            runtime::session(
+                &env,
+                &p.model_file(&o.detector, o.detector_precision)?,
+                o.detector_precision.options(options),
+            )?,
+            runtime::session(
+                &env,
+                &p.model_file(&o.recognizer, o.recognizer_precision)?,
+                o.recognizer_precision.options(options),
+            )?,
         )];
         let mut models = OcrModels::new(sessions, o, Arc::new(dictionary))?;
         let det_inputs = detector_inputs(o, decoded);

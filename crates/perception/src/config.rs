@@ -50,6 +50,14 @@ pub enum Precision {
 }
 
 impl Precision {
+    /// `options` for a model of this precision.
+    pub fn options(self, options: SessionOptions) -> SessionOptions {
+        SessionOptions {
+            int8: self == Precision::Int8,
+            ..options
+        }
+    }
+
     /// The file of `model` at this precision.
     pub fn file(self, model: &Path) -> PathBuf {
         match self {
@@ -183,9 +191,11 @@ impl PerceptionConfig {
     }
 
     /// The options of every model's sessions: the provider, and
-    /// `intra_threads` with 0 resolved to half the machine's cores.
+    /// `intra_threads` with 0 resolved to half the machine's cores (`int8`
+    /// false: each int8 model sets it, see [`Precision::options`]).
     pub fn session_options(&self) -> SessionOptions {
         SessionOptions {
+            int8: false,
             provider: self.provider,
             intra_threads: match self.intra_threads {
                 0 => std::thread::available_parallelism().map_or(1, |n| (n.get() / 2).max(1)),

@@ -182,7 +182,7 @@ impl Perception {
             let path = config.model_file(&m.model, m.precision)?;
             let models = (0..workers)
                 .map(|_| {
-                    let session = runtime::session(&env, &path, options)?;
+                    let session = runtime::session(&env, &path, m.precision.options(options))?;
                     ImageModel::new(
                         name,
                         session,
@@ -224,8 +224,16 @@ impl Perception {
                 let sessions = (0..workers)
                     .map(|_| {
                         Ok((
-                            runtime::session(&env, &detector_path, options)?,
-                            runtime::session(&env, &recognizer_path, options)?,
+                            runtime::session(
+                                &env,
+                                &detector_path,
+                                ocr_config.detector_precision.options(options),
+                            )?,
+                            runtime::session(
+                                &env,
+                                &recognizer_path,
+                                ocr_config.recognizer_precision.options(options),
+                            )?,
                         ))
                     })
                     .collect::<Result<Vec<_>, RuntimeError>>()?;

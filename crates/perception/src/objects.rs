@@ -126,7 +126,8 @@ impl Detector {
         outputs.extend(config.masks_output.clone());
         let models = (0..perception.workers.max(1))
             .map(|_| {
-                let session = runtime::session(env, &path, perception.session_options())?;
+                let options = config.precision.options(perception.session_options());
+                let session = runtime::session(env, &path, options)?;
                 let size = config.size as usize;
                 ImageModel::new(
                     "detector",

@@ -130,6 +130,29 @@ pub struct SessionOptions {
     pub provider: ExecutionProvider,
     /// Threads ONNX Runtime may use inside one inference; 0 = its default.
     pub intra_threads: usize,
+    /// The model is an int8 quantisation: on an x86 CPU without VNNI, its
+    /// products run in ONNX Runtime's precise mode ([`needs_precise_int8`]).
+    pub int8: bool,
+}
+
+/// Whether int8 models must run in ONNX Runtime's precise mode here. On
+/// x86 CPUs without VNNI (AVX2 only: Haswell to Skylake client, Zen 2/3)
+/// its fast uint8 × int8 kernels saturate 16-bit intermediate sums: under
+/// emulation of such a CPU the int8 descriptor fell to cosine 0.84 of the
+/// VNNI result, and text lines read differently. The precise mode
+/// (`session.x64quantprecision`) gives the VNNI results bit for bit there,
+/// slower; with VNNI it changes nothing and costs time, so it is set only
+/// where needed.
+pub fn needs_precise_int8() -> bool {
+    #[cfg(target_arch = "x86_64")]
+    {
+        !(std::arch::is_x86_feature_detected!("avx512vnni")
+            || std::arch::is_x86_feature_detected!("avxvnni"))
+    }
+    #[cfg(not(target_arch = "x86_64"))]
+    {
+        false
+    }
 }
 
 /// Loads a model.
@@ -153,6 +176,15 @@ pub fn session(
         builder = builder
             .with_intra_threads(options.intra_threads)
             .map_err(|e| error(e.to_string()))?;
+    }
+    if options.int8 && needs_precise_int8() {
+        builder = builder
+            .with_precise_qmm()
+            .map_err(|e| error(e.to_string()))?;
+        tracing::warn!(
+            model = %path.display(),
+            "this CPU has no VNNI: the int8 model runs in ONNX Runtime's precise mode, slower than fp32 here; set its precision to \"fp32\" for speed"
+        );
     }
     builder = with_provider(builder, options.provider, path);
     builder
@@ -202,5 +234,24 @@ fn with_provider(
             );
             e.recover()
         }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    #[cfg(all(target_os = "linux", target_arch = "x86_64"))]
+    fn precise_int8_is_asked_for_exactly_where_the_cpu_has_no_vnni() {
+        let cpuinfo = std::fs::read_to_string("/proc/cpuinfo").unwrap();
+        let flags: Vec<&str> = cpuinfo
+            .lines()
+            .find(|l| l.starts_with("flags"))
+            .unwrap()
+            .split_whitespace()
+            .collect();
+        let vnni = flags.contains(&"avx512_vnni") || flags.contains(&"avx_vnni");
+        assert_eq!(needs_precise_int8(), !vnni, "{flags:?}");
     }
 }
