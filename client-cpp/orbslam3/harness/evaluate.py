@@ -331,15 +331,15 @@ def main():
     results = [evaluate_run(os.path.join(a.runs_dir, d), gt, frames, laps) for d in dirs]
     results.sort(key=lambda r: (r["mode"] != "humem", int(r["run"]) if str(r["run"]).isdigit() else 0))
 
-    print("| run | keyframes | loop queries | candidates to geometric verification (true) "
+    print("| run | keyframes | frames lost | loop queries | candidates to geometric verification (true) "
           "| candidate precision per lap | verdicts (accepted) [reported to HuMem] | loops (true) "
           "| merges (true) | relocalisations (of attempts) | maps at end | KF ATE, Sim3 RMSE (largest map) "
           "| KF ATE (every map) | store = ORB-SLAM3 |")
-    print("| --- | --- | --- | --- | --- | --- | --- | --- | --- | --- | --- | --- | --- |")
+    print("| --- | --- | --- | --- | --- | --- | --- | --- | --- | --- | --- | --- | --- | --- |")
     for r in results:
         name = "%s %s" % ("HuMem" if r["mode"] == "humem" else "DBoW2" if r["mode"] == "dbow2" else r["mode"], r["run"])
         if "error" in r:
-            print("| %s | %s |  |  |  |  |  |  |  |  |  |  |  |" % (name, r["error"]))
+            print("| %s | %s |  |  |  |  |  |  |  |  |  |  |  |  |" % (name, r["error"]))
             continue
         q = str(r["queries"])
         if "humem_answered" in r:
@@ -347,8 +347,8 @@ def main():
         ate = "%.2f m (%d KFs)" % (r["ate_m"], r["ate_map_keyframes"]) if "ate_m" in r else "—"
         ate_all = "%.2f m (%d KFs)" % (r["ate_all_m"], r["ate_all_keyframes"]) if "ate_all_m" in r else "—"
         reloc = "%d of %d" % (len(r["relocalisations"]), r["reloc_attempts"])
-        print("| %s | %d | %s | %d (%d) | %s | %s | %s | %s | %s | %d | %s | %s | %s |" % (
-            name, r["keyframes"], q, r["candidates"], r["candidates_true"], fmt_laps(r), fmt_verdicts(r),
+        print("| %s | %d | %d | %s | %d (%d) | %s | %s | %s | %s | %s | %d | %s | %s | %s |" % (
+            name, r["keyframes"], r["frames_lost"], q, r["candidates"], r["candidates_true"], fmt_laps(r), fmt_verdicts(r),
             fmt_pairs(r["loops"]),
             fmt_pairs(r["merges"]), reloc, r["maps"], ate, ate_all, r.get("store", "—")))
     print()
@@ -362,9 +362,12 @@ def main():
         stores = "; store matched in %d of %d" % (sum(bool(r.get("store_ok")) for r in rs), len(rs)) \
             if mode == "humem" else ""
         print("- %s, %d runs: %d accepted (%d false); %d candidates (%d true); %d relocalisations; "
-              "one-map ATE %s%s" % (mode, len(rs), len(acc), sum(not p["true"] for p in acc),
-                                    sum(r["candidates"] for r in rs), sum(r["candidates_true"] for r in rs),
-                                    sum(len(r["relocalisations"]) for r in rs), med, stores))
+              "one-map ATE %s; median frames lost %g, median keyframes made %g%s"
+              % (mode, len(rs), len(acc), sum(not p["true"] for p in acc),
+                 sum(r["candidates"] for r in rs), sum(r["candidates_true"] for r in rs),
+                 sum(len(r["relocalisations"]) for r in rs), med,
+                 float(np.median([r["frames_lost"] for r in rs])),
+                 float(np.median([r["keyframes"] for r in rs])), stores))
     print()
     print("Accepted loops and merges (source frames; ground-truth distance and angle between them):")
     for r in results:
