@@ -195,6 +195,32 @@ impl DescriptorMatrix {
         self.rows - 1
     }
 
+    /// Asks the CPU to start loading row `i` into its caches (rows in
+    /// memory on x86-64; otherwise nothing). A scan over scattered rows (a
+    /// query's partition: one row of a robot every few dozen) issues it a
+    /// few rows ahead, since each such row is a fresh page the hardware
+    /// prefetcher does not foresee, and without it the rows wait for
+    /// memory one after another. Panics if out of range.
+    pub fn prefetch_row(&self, i: usize) {
+        assert!(i < self.rows, "row {i} out of range");
+        #[cfg(target_arch = "x86_64")]
+        if let Rows::Memory(data) = &self.data {
+            use std::arch::x86_64::{_mm_prefetch, _MM_HINT_T0};
+            // One prefetch per 64-byte line: 16 values.
+            for line in data[i * self.dim..(i + 1) * self.dim].chunks(16) {
+                #[allow(
+                    unsafe_code,
+                    reason = "_mm_prefetch is a #[target_feature(sse)] intrinsic; SSE is part of x86-64"
+                )]
+                // SAFETY: a prefetch is a hint: it reads nothing the program
+                // sees and cannot fault, and the address is in `data`.
+                unsafe {
+                    _mm_prefetch::<_MM_HINT_T0>(line.as_ptr().cast())
+                };
+            }
+        }
+    }
+
     /// Row `i`: borrowed when in memory, read when in a file. Panics if out
     /// of range.
     pub fn row(&self, i: usize) -> Cow<'_, [f32]> {

@@ -72,6 +72,10 @@ pub const COMPRESSED_MIN_ROWS: usize = 32_768;
 /// Rows per block of parallel work.
 const BLOCK: usize = 4096;
 
+/// How many runs ahead a scan over scattered rows prefetches
+/// ([`DescriptorMatrix::prefetch_row`](crate::vpr::matrix::DescriptorMatrix::prefetch_row)).
+const PREFETCH_RUNS_AHEAD: usize = 4;
+
 /// What one SCAL pass found.
 #[derive(Debug, Clone, PartialEq, Default)]
 pub struct ScalScan {
@@ -457,7 +461,13 @@ where
     let mut s_e = vec![[0.0; STEPS]; visit.len()];
     s_e.par_chunks_mut(BLOCK).enumerate().for_each(|(b, out)| {
         let block = visit.block(b * BLOCK, out.len());
-        for (at, first, len) in block.runs() {
+        let runs = block.runs();
+        for (k, &(at, first, len)) in runs.iter().enumerate() {
+            // Scattered rows: the row a few runs ahead starts loading now
+            // (a long run the hardware prefetcher follows on its own).
+            if let Some(&(_, ahead, _)) = runs.get(k + PREFETCH_RUNS_AHEAD) {
+                matrix.prefetch_row(ahead);
+            }
             let data = matrix.rows(first, len);
             for (i, r) in data.chunks_exact(dim).enumerate() {
                 out[at + i] = side.exact_row(memory, first + i, r);
