@@ -38,17 +38,6 @@ FILES = {
 DB_THRESHOLD, DB_BOX_THRESHOLD, DB_MIN_SIZE = 0.3, 0.6, 3
 
 
-def has_vnni():
-    """Whether this x86 CPU has VNNI (AVX512-VNNI or AVX-VNNI), where ONNX Runtime's fast
-    uint8 x int8 kernels are exact."""
-    try:
-        with open('/proc/cpuinfo') as f:
-            flags = set(f.read().split())
-    except OSError:
-        return False
-    return bool(flags & {'avx512_vnni', 'avx_vnni'})
-
-
 def session(path, threads=1):
     """A CPU session. Without VNNI, ONNX Runtime's uint8 x int8 kernels (AVX2 vpmaddubsw) saturate
     and the int8 models lose much of their accuracy, so there it takes the exact, slower uint8 x
@@ -56,7 +45,7 @@ def session(path, threads=1):
     options = ort.SessionOptions()
     options.intra_op_num_threads, options.inter_op_num_threads = threads, 1
     options.log_severity_level = 3
-    if not has_vnni():
+    if not qm.has_vnni():
         options.add_session_config_entry('session.x64quantprecision', '1')
     return ort.InferenceSession(path, options, providers=['CPUExecutionProvider'])
 
@@ -243,7 +232,7 @@ def main():
     results = {'efficientnet_lite0': measure_efficientnet(args.models_dir, pictures, args.runs),
                'ppocrv5_det': measure_detector(args.models_dir, pictures, args.runs),
                'ppocrv5_rec': measure_recognizer(args.models_dir, pictures, args.runs)}
-    print(f'onnxruntime {ort.__version__}, CPU with VNNI: {has_vnni()}')
+    print(f'onnxruntime {ort.__version__}, CPU with VNNI: {qm.has_vnni()}')
     for name, r in results.items():
         fp, q = r.pop('ms')
         print(f'{name}: fp32 {fp:.2f} ms, int8 {q:.2f} ms, int8/fp32 {q / fp:.2f}; '

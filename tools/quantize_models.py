@@ -297,6 +297,17 @@ def calibration_inputs(name, fp32_path, pictures, seed=CALIBRATION_SEED):
 
 # --- calibrate ----------------------------------------------------------------------------------
 
+def has_vnni():
+    """Whether this x86 CPU has VNNI (AVX512-VNNI or AVX-VNNI), where ONNX Runtime's fast
+    uint8 x int8 kernels are exact."""
+    try:
+        with open('/proc/cpuinfo') as f:
+            flags = set(f.read().split())
+    except OSError:
+        return False
+    return bool(flags & {'avx512_vnni', 'avx_vnni'})
+
+
 def sha256_file(path):
     with open(path, 'rb') as f:
         return hashlib.sha256(f.read()).hexdigest()

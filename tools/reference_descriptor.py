@@ -20,15 +20,7 @@ import numpy as np
 import onnxruntime as ort
 from PIL import Image
 
-
-def has_vnni():
-    """Whether this x86 CPU has VNNI (AVX512-VNNI or AVX-VNNI)."""
-    try:
-        with open('/proc/cpuinfo') as f:
-            flags = set(f.read().split())
-    except OSError:
-        return False
-    return bool(flags & {'avx512_vnni', 'avx_vnni'})
+from quantize_models import has_vnni  # tools/ is this script's own folder
 
 
 def model_is_int8(model):

@@ -8,22 +8,13 @@ use std::path::Path;
 
 use crate::harness::{models_dir, Server};
 
-/// `(name, nice)` of every thread of process `pid`.
+/// `(tid, name, nice)` of every thread of process `pid`.
 fn threads(pid: u32) -> Vec<(u32, String, i32)> {
-    let mut out = Vec::new();
-    for entry in std::fs::read_dir(format!("/proc/{pid}/task")).unwrap() {
-        let path = entry.unwrap().path();
-        let tid: u32 = path.file_name().unwrap().to_str().unwrap().parse().unwrap();
-        let name = std::fs::read_to_string(path.join("comm")).unwrap_or_default();
-        let stat = std::fs::read_to_string(path.join("stat")).unwrap_or_default();
-        // Fields after the ")" that closes the command: nice is the 17th.
-        let Some((_, rest)) = stat.rsplit_once(')') else {
-            continue;
-        };
-        let nice: i32 = rest.split_whitespace().nth(16).unwrap().parse().unwrap();
-        out.push((tid, name.trim().to_string(), nice));
-    }
-    out
+    humem_perception::cpu::threads(pid)
+        .unwrap()
+        .into_iter()
+        .map(|t| (t.tid, t.name, t.nice))
+        .collect()
 }
 
 #[test]

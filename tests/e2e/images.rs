@@ -332,7 +332,7 @@ async fn the_first_look_skips_images_without_text_and_reads_the_rest() {
         ..OcrConfig::default()
     };
     perception.ocr = Some(config.clone());
-    let env = runtime::environment(&runtime::library_path(None, &perception.models_dir)).unwrap();
+    let env = runtime::environment(&perception.onnxruntime_library()).unwrap();
     let options = perception.session_options();
     let sessions = vec![(
         runtime::session(&env, &perception.resolve(&config.detector), options).unwrap(),

@@ -6,8 +6,8 @@ use proptest::prelude::*;
 
 use crate::index::Index;
 use crate::keyframe::{Features, KeyframeKey, Pose, SceneClass, SemanticKeyframe, SessionKey};
-use crate::vpr::eligibility::{MapRef, QueryContext, Scope};
-use crate::vpr::testing::{scene_strategy, unit_vector};
+use crate::vpr::eligibility::{QueryContext, Scope};
+use crate::vpr::testing::{scene_strategy, scope_strategy, unit_vector};
 use crate::vpr::{scal_scan, RowFilter, ScalQuery, ScalScan, ScanMode, VprParams};
 
 const ROBOTS: &[&str] = &["r0", "r1", "r2", "r3", "r4", "r5"];
@@ -37,29 +37,6 @@ fn keyframe(
 /// A robot name, sometimes one the store has never seen.
 fn robot_name() -> impl Strategy<Value = String> {
     prop::sample::select(ROBOTS).prop_map(str::to_string)
-}
-
-fn scope() -> impl Strategy<Value = Scope> {
-    let map = (
-        robot_name(),
-        prop::option::of(prop::sample::select(SESSIONS).prop_map(str::to_string)),
-        0u64..3,
-    )
-        .prop_map(|(robot_id, session_id, map_id)| MapRef {
-            robot_id,
-            session_id,
-            map_id,
-        });
-    prop_oneof![
-        Just(Scope::SameMap),
-        Just(Scope::OtherMaps),
-        Just(Scope::AllMaps),
-        (
-            prop::collection::vec(robot_name(), 0..3),
-            prop::collection::vec(map, 0..3)
-        )
-            .prop_map(|(robot_ids, maps)| Scope::Listed { robot_ids, maps }),
-    ]
 }
 
 fn assert_same_bits(a: &ScalScan, b: &ScalScan) -> Result<(), TestCaseError> {
@@ -102,7 +79,7 @@ proptest! {
     fn a_query_scans_only_what_it_may_see_and_answers_as_the_full_scan(
         rows in store_strategy(),
         query in (0usize..6, 0usize..2, prop::option::of(0u64..40), 0u64..120, 0u64..3, 0u64..40),
-        scope in scope(),
+        scope in scope_strategy(ROBOTS, SESSIONS),
         readable in prop::option::of(prop::collection::vec(robot_name(), 0..4)),
         history in prop::collection::vec((unit_vector(6), scene_strategy()), 1..4),
         k in 1usize..12,

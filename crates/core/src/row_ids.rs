@@ -200,7 +200,8 @@ impl Eligibility {
 mod tests {
     use super::*;
     use crate::keyframe::{KeyframeKey, SessionKey};
-    use crate::vpr::eligibility::{is_eligible, CandidateMeta, MapRef};
+    use crate::vpr::eligibility::{is_eligible, CandidateMeta};
+    use crate::vpr::testing::scope_strategy;
     use proptest::prelude::*;
 
     const NAMES: &[&str] = &["a", "b", "c"];
@@ -210,23 +211,7 @@ mod tests {
     }
 
     fn scope() -> impl Strategy<Value = Scope> {
-        let map = (name(), prop::option::of(name()), 0u64..3).prop_map(
-            |(robot_id, session_id, map_id)| MapRef {
-                robot_id,
-                session_id,
-                map_id,
-            },
-        );
-        prop_oneof![
-            Just(Scope::SameMap),
-            Just(Scope::OtherMaps),
-            Just(Scope::AllMaps),
-            (
-                prop::collection::vec(name(), 0..3),
-                prop::collection::vec(map, 0..3)
-            )
-                .prop_map(|(robot_ids, maps)| Scope::Listed { robot_ids, maps }),
-        ]
+        scope_strategy(NAMES, NAMES)
     }
 
     proptest! {

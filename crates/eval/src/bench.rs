@@ -264,10 +264,7 @@ fn core_time(
     decoded: &[image::RgbImage],
     repeats: usize,
 ) -> anyhow::Result<()> {
-    let env = runtime::environment(&runtime::library_path(
-        p.onnxruntime.as_deref(),
-        &p.models_dir,
-    ))?;
+    let env = runtime::environment(&p.onnxruntime_library())?;
     let options = SessionOptions {
         intra_threads: 1,
         ..p.session_options()
@@ -408,10 +405,7 @@ fn models_alone(
     decoded: &[image::RgbImage],
     repeats: usize,
 ) -> anyhow::Result<()> {
-    let env = runtime::environment(&runtime::library_path(
-        p.onnxruntime.as_deref(),
-        &p.models_dir,
-    ))?;
+    let env = runtime::environment(&p.onnxruntime_library())?;
     let options = p.session_options();
     println!("\n1. models called directly, per batch (ms)");
     println!(

@@ -157,6 +157,13 @@ fn efficientnet(output: &str) -> ImageModelConfig {
 }
 
 impl PerceptionConfig {
+    /// The ONNX Runtime library to load: `onnxruntime`, else
+    /// `ORT_DYLIB_PATH`, else the one under `models_dir`
+    /// ([`crate::runtime::library_path`]).
+    pub fn onnxruntime_library(&self) -> PathBuf {
+        crate::runtime::library_path(self.onnxruntime.as_deref(), &self.models_dir)
+    }
+
     /// `path` under `models_dir` unless it is absolute.
     pub fn resolve(&self, path: &Path) -> PathBuf {
         if path.is_absolute() {

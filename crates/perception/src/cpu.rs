@@ -89,34 +89,52 @@ pub fn process_cpu_time() -> std::time::Duration {
     time(usage.ru_utime) + time(usage.ru_stime)
 }
 
-/// The nice value of the thread `tid` of this process, from
-/// `/proc/self/task/<tid>/stat` (Linux); for tests and diagnostics.
-pub fn thread_nice(tid: u32) -> io::Result<i32> {
-    let stat = std::fs::read_to_string(format!("/proc/self/task/{tid}/stat"))?;
-    // Fields after the command (in parentheses, which may hold spaces):
-    // state is field 3, nice field 19.
-    let rest = stat
-        .rsplit_once(')')
-        .map(|(_, rest)| rest)
-        .ok_or_else(|| io::Error::other("malformed stat"))?;
-    rest.split_whitespace()
-        .nth(16)
-        .and_then(|v| v.parse().ok())
-        .ok_or_else(|| io::Error::other("no nice field in stat"))
+/// One thread of a process, as `/proc` shows it.
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub struct ThreadInfo {
+    /// Thread id.
+    pub tid: u32,
+    /// Its name (`comm`, at most 15 bytes).
+    pub name: String,
+    /// Its nice value.
+    pub nice: i32,
 }
 
-/// The ids and names of this process's threads (Linux).
-pub fn threads() -> io::Result<Vec<(u32, String)>> {
+/// Every thread of process `pid` (Linux, `/proc/<pid>/task`); for tests
+/// and diagnostics. Threads that end while being read are left out.
+pub fn threads(pid: u32) -> io::Result<Vec<ThreadInfo>> {
     let mut out = Vec::new();
-    for entry in std::fs::read_dir("/proc/self/task")? {
-        let entry = entry?;
-        let Ok(tid) = entry.file_name().to_string_lossy().parse::<u32>() else {
+    for entry in std::fs::read_dir(format!("/proc/{pid}/task"))? {
+        let path = entry?.path();
+        let Some(tid) = path
+            .file_name()
+            .and_then(|n| n.to_str())
+            .and_then(|n| n.parse().ok())
+        else {
             continue;
         };
-        let name = std::fs::read_to_string(entry.path().join("comm")).unwrap_or_default();
-        out.push((tid, name.trim().to_string()));
+        let (Ok(name), Ok(stat)) = (
+            std::fs::read_to_string(path.join("comm")),
+            std::fs::read_to_string(path.join("stat")),
+        ) else {
+            continue;
+        };
+        out.push(ThreadInfo {
+            tid,
+            name: name.trim().to_string(),
+            nice: nice_of_stat(&stat)?,
+        });
     }
     Ok(out)
+}
+
+/// The nice value in a `/proc/.../stat` line: the 19th field, the 17th
+/// after the command (in parentheses, which may hold spaces).
+fn nice_of_stat(stat: &str) -> io::Result<i32> {
+    stat.rsplit_once(')')
+        .and_then(|(_, rest)| rest.split_whitespace().nth(16))
+        .and_then(|v| v.parse().ok())
+        .ok_or_else(|| io::Error::other("no nice field in stat"))
 }
 
 #[cfg(all(test, target_os = "linux"))]
@@ -125,18 +143,15 @@ mod tests {
 
     #[test]
     fn threads_started_at_a_nice_value_inherit_it_and_the_caller_keeps_its_own() {
-        let before = thread_nice(current_tid()).unwrap();
+        let before = own_nice();
         let (loader, child) = run_at_nice(7, || {
-            let loader = thread_nice(current_tid()).unwrap();
-            let child = std::thread::spawn(|| thread_nice(current_tid()).unwrap())
-                .join()
-                .unwrap();
+            let loader = own_nice();
+            let child = std::thread::spawn(own_nice).join().unwrap();
             (loader, child)
         })
         .unwrap();
         assert_eq!((loader, child), (before.max(7), before.max(7)));
-        assert_eq!(thread_nice(current_tid()).unwrap(), before);
-        assert!(threads().unwrap().iter().any(|(_, name)| !name.is_empty()));
+        assert_eq!(own_nice(), before);
     }
 
     #[test]
@@ -159,10 +174,16 @@ mod tests {
         );
     }
 
-    fn current_tid() -> u32 {
+    /// The calling thread's nice value, as [`threads`] reads it.
+    fn own_nice() -> i32 {
         // SAFETY: gettid takes nothing and returns this thread's id.
         #[allow(unsafe_code)]
-        let tid = unsafe { libc::gettid() };
-        tid as u32
+        let tid = unsafe { libc::gettid() } as u32;
+        threads(std::process::id())
+            .unwrap()
+            .into_iter()
+            .find(|t| t.tid == tid)
+            .unwrap()
+            .nice
     }
 }

@@ -168,8 +168,7 @@ impl Perception {
         scene_top_k: usize,
         observer: SharedObserver,
     ) -> Result<Perception, RuntimeError> {
-        let library = runtime::library_path(config.onnxruntime.as_deref(), &config.models_dir);
-        let env = runtime::environment(&library)?;
+        let env = runtime::environment(&config.onnxruntime_library())?;
         let options = config.session_options();
         let batching = config.batching();
         let workers = config.workers.max(1);

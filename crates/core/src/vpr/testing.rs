@@ -8,6 +8,7 @@
 use proptest::prelude::*;
 
 use crate::keyframe::{Features, ObjectObservation, SceneClass, TextObservation};
+use crate::vpr::eligibility::{MapRef, Scope};
 use crate::vpr::memory::VecMemory;
 
 /// Absolute-tolerance comparison for hand-computed expectations.
@@ -156,4 +157,32 @@ pub fn memory_strategy(dim: usize, max_rows: usize) -> impl Strategy<Value = Vec
         }
         m
     })
+}
+
+/// A query scope over robots named from `robots` and sessions from
+/// `sessions`: the three fixed scopes, or a list of up to two robots and
+/// two maps (session named or any, map id 0..3).
+pub fn scope_strategy(
+    robots: &'static [&'static str],
+    sessions: &'static [&'static str],
+) -> impl Strategy<Value = Scope> {
+    let name =
+        |names: &'static [&'static str]| prop::sample::select(names).prop_map(str::to_string);
+    let map = (name(robots), prop::option::of(name(sessions)), 0u64..3).prop_map(
+        |(robot_id, session_id, map_id)| MapRef {
+            robot_id,
+            session_id,
+            map_id,
+        },
+    );
+    prop_oneof![
+        Just(Scope::SameMap),
+        Just(Scope::OtherMaps),
+        Just(Scope::AllMaps),
+        (
+            prop::collection::vec(name(robots), 0..3),
+            prop::collection::vec(map, 0..3)
+        )
+            .prop_map(|(robot_ids, maps)| Scope::Listed { robot_ids, maps }),
+    ]
 }
