@@ -1,10 +1,10 @@
 #!/usr/bin/env bash
-# The published evaluation (README "Results"): `humem eval` with the ablation
+# The published evaluation (docs/evaluation.md, "Results"): `humem eval` with the ablation
 # and the ORB bag-of-words baseline on every data set of ../shared/datasets,
 # the B15/D80 and B35/D80 degradations on corridor, and town-dev's pairs
 # again with ground-truth objects. Writes one report folder per run and a
 # combined Markdown table, eval-results/results.md (and summary.md: SCAL, Full
-# and the baseline only, the README's table).
+# and the baseline only, the table of docs/evaluation.md).
 #
 #   scripts/eval-all.sh [DATASETS_DIR] [OUT_DIR]
 set -euo pipefail

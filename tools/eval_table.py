@@ -3,7 +3,7 @@
 (optionally only some methods: --methods SCAL,Full,ORB-BoW): recall, the
 precision figures at the operating point, and the median latency.
 
-Used by scripts/eval-all.sh to make the README's results section; standard
+Used by scripts/eval-all.sh to make the results section of docs/evaluation.md; standard
 library only, so it runs with any Python 3.
 """
 

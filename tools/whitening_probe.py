@@ -15,7 +15,7 @@ as a server would fit it on its keyframes; and leave-one-out, on the stores
 of the other sets (the town-dev conditions share one reference drive, so
 they leave each other out). Variants: centring only; PCA to d dimensions
 with each eigenvalue regularised by `shrink` times their mean and raised to
-`-power` (0.5 is whitening proper). The README ("Perception quality")
+`-power` (0.5 is whitening proper). docs/evaluation.md ("Perception quality")
 quotes the result.
 """
 import glob

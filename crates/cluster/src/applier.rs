@@ -130,7 +130,7 @@ pub(crate) async fn run(
                         &shared,
                         &*observer,
                         format!(
-                            "the write log has no entries {expected}..{sequence}: they were removed from stream {} (cluster.max_age_hours) before this replica applied them. Seed this replica from a healthy one (README \"Cluster mode\")",
+                            "the write log has no entries {expected}..{sequence}: they were removed from stream {} (cluster.max_age_hours) before this replica applied them. Seed this replica from a healthy one (docs/fleet-and-cluster.md, \"Retention\")",
                             stream.cached_info().config.name
                         ),
                     );

@@ -32,8 +32,8 @@ pub struct ClusterConfig {
     /// survives one server lost; 1 for a single NATS server).
     pub stream_replicas: usize,
     /// Hours an entry is kept in the stream (0: for ever). A replica away
-    /// longer than this cannot catch up from the stream (README "Cluster
-    /// mode").
+    /// longer than this cannot catch up from the stream (docs/fleet-and-cluster.md,
+    /// "Retention").
     pub max_age_hours: u64,
     /// Seconds within which a write published again (a retry after a lost
     /// acknowledgement) is recognised by its id and stored once.

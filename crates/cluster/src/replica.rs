@@ -87,7 +87,7 @@ impl Replica {
         }
         if position + 1 < state.first_sequence {
             return Err(ClusterError::Diverged(format!(
-                "this store has applied the write log up to entry {position}, but stream {} now starts at entry {} (older entries aged out, cluster.max_age_hours): seed this replica from a healthy one (README \"Cluster mode\")",
+                "this store has applied the write log up to entry {position}, but stream {} now starts at entry {} (older entries aged out, cluster.max_age_hours): seed this replica from a healthy one (docs/fleet-and-cluster.md, \"Retention\")",
                 config.stream, state.first_sequence
             )));
         }

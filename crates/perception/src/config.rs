@@ -26,7 +26,7 @@ const EFFICIENTNET: &str = "efficientnet-lite0/efficientnet_lite0.onnx";
 const DESCRIPTOR_SIZE: [u32; 2] = [384, 288];
 /// Precision of the default descriptor (and scene) model: int8 keeps
 /// parity (mean Full R@1 over the 8 dev sets 0.635 fp32, 0.666 int8, every
-/// model int8) at 0.47x the core time (README "Quantised models").
+/// model int8) at 0.47x the core time (docs/using.md, "Quantised models").
 const DESCRIPTOR_PRECISION: Precision = Precision::Int8;
 /// Precision of the default text detector: fp32, since int8 lost text
 /// recall (town-dev/loop 0.383 → 0.267).
@@ -98,8 +98,8 @@ pub struct PerceptionConfig {
     pub workers: usize,
     /// Most images (or text lines) per inference; 0 = 1 on the CPU, 8 with
     /// a GPU provider. On a CPU a batch costs about as much per image as
-    /// single inferences and only delays answers (see the README's
-    /// benchmark); GPUs are where batching pays.
+    /// single inferences and only delays answers (see the perception
+    /// benchmark in docs/benchmarks.md); GPUs are where batching pays.
     pub max_batch: usize,
     /// Longest a request waits for others to share its inference, in ms.
     pub max_wait_ms: u64,

@@ -5,13 +5,13 @@
 //! see: fog, night, blur and tiny images. A SeqSLAM-style thumbnail (the
 //! image in grey at 64×48, each 8×8 patch normalised to zero mean and unit
 //! variance) keeps the coarse layout of light and dark whatever the
-//! exposure, and matches where the CNN does not (README, "Perception").
+//! exposure, and matches where the CNN does not (docs/evaluation.md, "Perception quality").
 //! It enters SCAL as `s_e = (1 − w) clip(cos) + w clip(ρ)`, with `ρ` the
 //! thumbnails' correlation and `w` = `vpr.appearance_weight`, only when both
 //! sides have a thumbnail (otherwise `s_e` is the cosine alone, as a missing
 //! scene model leaves `s̃_e` alone). `w` is 0 by default: the channel raises
 //! R@1 but, fused into one score, it widens the null that calibration
-//! measures against, and fewer queries pass the threshold (README,
+//! measures against, and fewer queries pass the threshold (docs/evaluation.md,
 //! "Perception quality"). Thumbnails are computed and stored regardless, so
 //! a store can turn it on without re-inserting.
 //!

@@ -18,7 +18,7 @@
 //! It is unchanged by any map `s ↦ a s + (1 − a)` of the similarity
 //! (`a > 0`), i.e. by where a descriptor puts its unrelated places, and it
 //! also takes out a query's own "genericness" (a bland corridor frame that
-//! scores high against everything). Measured on every dev data set (README,
+//! scores high against everything). Measured on every dev data set (docs/scoring.md,
 //! "Operating point"), it was chosen over a z-score against the null's MAD
 //! or its 90th percentile (whose per-query spread estimates were too noisy:
 //! recall at 100 % precision on `town-dev/loop` fell from 0.96 to 0.81 and

@@ -91,7 +91,7 @@ pub struct VerdictParams {
     /// Whether acceptances linking two candidates of one query corroborate
     /// both (the place graph); acceptances linking the query's own place
     /// count regardless. Off by default: on the dev sets it added no
-    /// recall and cost candidate precision (README, "Verdicts"), since a
+    /// recall and cost candidate precision (docs/scoring.md, "Verdicts"), since a
     /// look-alike place verified against its own earlier visit is
     /// corroborated as much as the true place.
     pub place_graph: bool,
@@ -102,14 +102,14 @@ pub struct VerdictParams {
     /// ([`super::operating_point`]); off: the configured threshold always.
     /// Off by default: the estimate reads a rejection as "another place"
     /// unless geometry's miss rate explains it, and ORB-SLAM3 rejects most
-    /// candidates it is sent, true places included (README, "Verdicts":
+    /// candidates it is sent, true places included (docs/scoring.md, "Verdicts":
     /// the harness measured it), so with its verdicts the threshold would
     /// rise to its bound and lose true loops.
     pub adapt_threshold: bool,
     /// The candidate precision the adapted threshold holds, in (0, 1].
     /// 0.90: at the configured threshold every dev set's candidates are
     /// at least about that precise, so on them it changes nothing (0.95
-    /// and 0.98 cost recall on real images and under glare; README,
+    /// and 0.98 cost recall on real images and under glare; docs/evaluation.md,
     /// "Verdicts replayed"), and it raises the threshold where candidates
     /// fall well below it.
     pub target_precision: f64,

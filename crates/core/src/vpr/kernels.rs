@@ -143,7 +143,7 @@ impl CodeKernel {
     /// pass ends up slower than the f32 one (measured on this project's
     /// development machine: 220 ns per 512-byte row against 180 ns per
     /// 2 KB f32 row), so `vpr.scan = "auto"` keeps the exact pass there.
-    /// Both vector kernels do (the README's "Scan at fleet scale" has the
+    /// Both vector kernels do (docs/benchmarks.md, "Scan at fleet scale", has the
     /// table: 0.45× the f32 scan on one core with VNNI, 0.69× with AVX2).
     pub fn pays_off(self) -> bool {
         self.0 != Kind::Portable

@@ -24,7 +24,7 @@ pub struct VprParams {
     /// (`vpr::appearance`; 0, the default, turns the channel off). 0.1–0.15
     /// raise the mean R@1 over the dev data sets by 0.055–0.065 but widen
     /// the null, so that at the 2 % false-alarm operating point fewer
-    /// queries are answered (README, "Perception quality").
+    /// queries are answered (docs/evaluation.md, "Perception quality").
     pub appearance_weight: f32,
     /// `α`, temporal weights of the current observation and its two predecessors.
     pub alpha: [f32; 3],
@@ -60,7 +60,7 @@ pub struct VprParams {
     pub tau_s: f32,
     /// `τ_c`, the selection threshold on the calibrated score (strict), used
     /// with `calibration = "null"`. Chosen on the mean over every dev data
-    /// set (README, "Operating point").
+    /// set (docs/scoring.md, "Operating point").
     pub tau_c: f32,
     /// Fewest eligible keyframes for a calibrated answer: below this the
     /// query's null distribution is not known and every calibrated score
