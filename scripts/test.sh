@@ -3,8 +3,8 @@
 # and the models if they are missing, checks the model converter on real
 # pictures and the int8 models against the fp32 ones, then formatting, lints
 # and every Rust test, unit and end-to-end (the e2e tests start the
-# real `humem` binary and run the real models), then the C++ client's tests
-# against that binary, and the deployment files checked with the real
+# real `humem` binary and run the real models), then the C++ and the Python
+# clients' tests against that binary, and the deployment files checked with the real
 # Prometheus, promtool and systemd-analyze.
 set -euo pipefail
 cd "$(dirname "$0")/.."
@@ -17,6 +17,7 @@ echo "== model tools tests"
 models/.venv/bin/python tools/test_efficientnet_to_onnx.py models
 models/.venv/bin/python tools/test_quantize_models.py models
 models/.venv/bin/python tools/test_make_tiny_yolo.py
+models/.venv/bin/python tools/test_docs_links.py
 echo "== cargo fmt --check"
 cargo fmt --all -- --check
 echo "== cargo clippy"
@@ -29,5 +30,7 @@ for kernel in avx2 portable; do
 done
 echo "== client-cpp (scripts/test-client-cpp.sh)"
 HUMEM_BIN=target/debug/humem scripts/test-client-cpp.sh
+echo "== client-python (scripts/test-client-python.sh)"
+HUMEM_BIN=target/debug/humem scripts/test-client-python.sh
 echo "== deployment checks (scripts/check-deploy.sh)"
 HUMEM_BIN=target/debug/humem scripts/check-deploy.sh
