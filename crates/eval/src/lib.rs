@@ -10,12 +10,15 @@
 //! - [`annotations`]: ground-truth objects from instance masks (`--objects annotations`);
 //! - [`baseline`]: the ORB bag-of-words baseline ORB-SLAM3 uses (`humem-orb-bow`);
 //! - [`dataset`]: data set folders and where their ground truth comes from;
+//! - [`source`]: recordings (bags, TUM, EuRoC, KITTI) as data set folders (`--source`);
 //! - [`truth`]: ground truth files, pose files and the paper's pose rule;
 //! - [`metrics`]: Recall@K, MRR, query selection and latency statistics;
 //! - [`precision`]: false alarms, candidate precision, recall at 100 %
 //!   precision and the precision–recall curve at the operating point;
 //! - [`degrade`]: the motion blur and exposure reduction of the conditions;
 //! - [`plots`]: the report's charts (accuracy–latency, recall per condition);
+//! - [`ingest`]: a recording streamed into a running server, its loop
+//!   candidates scored (`humem ingest`);
 //! - [`remote`]: the run measured through a service over gRPC (`--server`);
 //! - [`run`]: the run itself, its table, JSON and report;
 //! - [`text_recall`]: how often OCR reads the signs in view (`humem text-recall`);
@@ -30,6 +33,7 @@ pub mod baseline;
 pub mod bench;
 pub mod dataset;
 pub mod degrade;
+pub mod ingest;
 pub mod metrics;
 pub mod plots;
 pub mod precision;
@@ -37,6 +41,7 @@ pub mod remote;
 pub mod restart_bench;
 pub mod run;
 pub mod scan_bench;
+pub mod source;
 pub mod text_recall;
 pub mod truth;
 pub mod verdict_bench;

@@ -43,9 +43,13 @@ use humem_server::pipeline::request::{QueryKind, QuerySpec};
 /// Options of `humem eval`.
 #[derive(Debug, Clone, clap::Args)]
 pub struct EvalArgs {
-    /// Data set folder (pairs: query/ + reference/; loop: sequence/).
-    #[arg(long)]
-    pub dataset: PathBuf,
+    /// Data set folder (pairs: query/ + reference/; loop: sequence/); or
+    /// a recording with --source.
+    #[arg(long, required_unless_present = "source", conflicts_with = "source")]
+    pub dataset: Option<PathBuf>,
+    /// A recording instead of a data set folder, and how to read it.
+    #[command(flatten)]
+    pub recording: super::source::SourceArgs,
     /// Layers to score with: scal, scal+osrl, scal+ogtl, full-no-c (the
     /// paper's full method: evidence for only) or full.
     #[arg(long, default_value = "full")]
@@ -118,6 +122,16 @@ pub struct EvalArgs {
     /// NAME:key=value,… (keys of [vpr.verdicts]); repeatable.
     #[arg(long)]
     pub replay_variant: Vec<super::verdict_replay::Variant>,
+}
+
+impl EvalArgs {
+    /// The data set folder: `--dataset`, or the folder `run` made of
+    /// `--source`.
+    pub fn dataset_dir(&self) -> &std::path::Path {
+        self.dataset
+            .as_deref()
+            .expect("clap requires --dataset or --source, and run() sets it from --source")
+    }
 }
 
 /// Source of the objects of each image.
@@ -403,7 +417,7 @@ impl LocalDatabase {
         let features = |p: &[Perceived]| p.iter().map(|p| p.features.clone()).collect::<Vec<_>>();
         super::verdict_replay::replay(
             &config.vpr,
-            &args.dataset,
+            args.dataset_dir(),
             dataset,
             &features(&self.references),
             &features(queries),
@@ -603,13 +617,23 @@ impl Selection {
 }
 
 /// `humem eval`.
-pub async fn run(config: Config, args: EvalArgs) -> anyhow::Result<()> {
+pub async fn run(config: Config, mut args: EvalArgs) -> anyhow::Result<()> {
+    // A recording becomes a data set folder first; the guard keeps a
+    // temporary one until the run ends.
+    let _recording = match args.recording.source.clone() {
+        Some(source) => {
+            let materialized = args.recording.materialize(&source)?;
+            args.dataset = Some(materialized.folder.clone());
+            Some(materialized)
+        }
+        None => None,
+    };
     let rule = PoseRule {
         max_distance_m: args.max_distance,
         max_angle_deg: args.max_angle,
         min_frame_gap: args.min_gap.unwrap_or(100),
     };
-    let dataset = Dataset::open(&args.dataset, &rule, args.min_gap)?;
+    let dataset = Dataset::open(args.dataset_dir(), &rule, args.min_gap)?;
     let methods = methods(&args)?;
     let selection = Selection::new(&dataset, (!args.all_queries).then_some(args.max_queries));
     let point = OperatingPoint {
@@ -703,7 +727,7 @@ pub async fn run(config: Config, args: EvalArgs) -> anyhow::Result<()> {
                 remote
                     .replay_verdicts(
                         &config.vpr,
-                        &args.dataset,
+                        args.dataset_dir(),
                         &dataset,
                         super::verdict_replay::ReplayOptions {
                             wrong_rejections: args.wrong_rejections,
@@ -752,7 +776,7 @@ impl Backend {
                     .context("loading the perception models (run scripts/setup-models.sh)")?;
                 let annotations = match args.objects {
                     ObjectSource::Models => None,
-                    ObjectSource::Annotations => Some(Catalog::find(&args.dataset)?),
+                    ObjectSource::Annotations => Some(Catalog::find(args.dataset_dir())?),
                 };
                 let database =
                     LocalDatabase::build(&perception, dataset, annotations, args.grey).await?;
