@@ -61,7 +61,7 @@ pub async fn serve(config: Config) -> anyhow::Result<()> {
         })
             .await
             .context("loading the perception models")?
-            .context("loading the perception models (set perception.enabled = false to serve precomputed features only)")?;
+            .context("loading the perception models (`humem models check` shows what each model takes and gives; perception.enabled = false serves precomputed features only)")?;
         Some(perception)
     } else {
         tracing::warn!("perception disabled: requests with images will be refused");
@@ -71,6 +71,9 @@ pub async fn serve(config: Config) -> anyhow::Result<()> {
         .await
         .context("opening the store")?
         .with_context(|| format!("opening the store in {}", config.store.data_dir.display()))?;
+    if let Some(perception) = &perception {
+        descriptor_fits_store(perception, &config, store.index().dim())?;
+    }
     let auth = crate::auth::Authenticator::start(&config.auth, &config.server.tls)
         .context("loading the token file (auth.tokens_file)")?;
     check_exposure(&config, auth.enabled())?;
@@ -254,6 +257,37 @@ pub async fn serve(config: Config) -> anyhow::Result<()> {
     }
     tracing::info!("humem stopped");
     Ok(())
+}
+
+/// Refuses a descriptor model whose length is not the store's (`dim`, 0:
+/// not fixed yet), where the graph fixes it: every image insert would be
+/// refused. The models' own graph checks ran as they loaded.
+fn descriptor_fits_store(
+    perception: &Perception,
+    config: &Config,
+    dim: usize,
+) -> anyhow::Result<()> {
+    let (Some(len), true) = (perception.descriptor_len(), dim > 0) else {
+        return Ok(());
+    };
+    let source = if config.store.descriptor_dim > 0 {
+        "store.descriptor_dim".to_string()
+    } else {
+        format!(
+            "the store in {}; start a new data directory when the descriptor model changes",
+            config.store.data_dir.display()
+        )
+    };
+    let expected = [humem_perception::check::Expected { len: dim, source }];
+    let m = &config.perception.descriptor;
+    humem_perception::check::graph::lengths_fit(
+        "perception.descriptor",
+        &m.output,
+        len,
+        &format!("[N, {len}] in {}", m.model.display()),
+        &expected,
+    )
+    .context("checking the perception models against the store (humem models check says more)")
 }
 
 /// Refuses to serve beyond this machine without TLS and credentials,

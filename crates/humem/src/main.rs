@@ -74,6 +74,11 @@ async fn main() -> anyhow::Result<()> {
             humem_eval::run::run(config, args).await
         }
         #[cfg(feature = "eval")]
+        Command::Ingest(args) => {
+            init_logging(LogFormat::Plain, "warn");
+            humem_eval::ingest::run(args).await
+        }
+        #[cfg(feature = "eval")]
         Command::TextRecall(args) => {
             let config = Config::load(cli.config.as_deref(), figment::Figment::new())?;
             init_logging(LogFormat::Plain, "warn,ort::logging=error");
@@ -84,6 +89,12 @@ async fn main() -> anyhow::Result<()> {
             init_logging(LogFormat::Plain, "warn");
             let config = Config::load(cli.config.as_deref(), figment::Figment::new())?;
             crate::cli::token::run(command, config.auth.tokens_file.as_deref())
+        }
+        Command::Models(command) => {
+            let config = Config::load(cli.config.as_deref(), figment::Figment::new())?;
+            // ONNX Runtime's errors are in the check's own messages.
+            init_logging(LogFormat::Plain, "warn,ort::logging=off");
+            crate::cli::models::run(command, &config)
         }
         Command::Export { data_dir } => {
             init_logging(LogFormat::Plain, "warn");

@@ -153,6 +153,8 @@ fn efficientnet(output: &str) -> ImageModelConfig {
         std: LITE_STD,
         output: output.into(),
         precision: DESCRIPTOR_PRECISION,
+        input_multiple: 0,
+        output_len: None,
     }
 }
 
@@ -265,6 +267,18 @@ pub struct ImageModelConfig {
     /// `fp32` (the file as named) or `int8` (its quantisation beside it).
     #[serde(default)]
     pub precision: Precision,
+    /// `width` and `height` must be multiples of this, for a model whose
+    /// graph takes any size but works only on whole patches (a ViT/14, e.g.
+    /// DINOv2: 14); 0 or 1: any size. Checked when the model loads and by
+    /// `humem models check`.
+    #[serde(default)]
+    pub input_multiple: u32,
+    /// Values per image the output must have: the descriptor's length, or
+    /// the scene model's class count (365 for Places365); unset: whatever
+    /// the graph gives (the descriptor is still checked against
+    /// `store.descriptor_dim` and a store's recorded length).
+    #[serde(default)]
+    pub output_len: Option<usize>,
 }
 
 impl ImageModelConfig {

@@ -21,11 +21,14 @@
 //!   and objects in image pixels;
 //! - [`yolo`]: decoding YOLO outputs, NMS and instance masks;
 //! - [`ocr`]: PP-OCRv5 text detection and recognition;
+//! - [`check`]: every model's inputs and outputs against its
+//!   configuration (at load, and with one image by `humem models check`);
 //! - [`cpu`]: the nice value perception's threads run at, and the CPU
 //!   time the process uses.
 
 pub mod appearance;
 pub mod batcher;
+pub mod check;
 pub mod config;
 pub mod cpu;
 pub mod geometry;
@@ -114,6 +117,9 @@ pub enum PerceptionError {
     Output(String),
 }
 
+/// A graph check of a whole-image role ([`check::graph`]).
+type GraphCheck = fn(&check::Io, &PerceptionConfig) -> Result<check::Facts, check::CheckError>;
+
 /// One model over whole images, with its preprocessing.
 #[derive(Clone)]
 struct ImageRole {
@@ -135,10 +141,13 @@ pub struct Perception {
     scene_top_k: usize,
     /// Whether the appearance thumbnail is computed.
     appearance: bool,
+    /// The descriptor's length, where its graph fixes it.
+    descriptor_len: Option<usize>,
 }
 
 impl Perception {
-    /// Loads ONNX Runtime and every configured model.
+    /// Loads ONNX Runtime and every configured model, refusing a model
+    /// whose graph does not fit its configuration ([`check::graph`]).
     pub fn load(config: &PerceptionConfig, scene_top_k: usize) -> Result<Perception, RuntimeError> {
         Self::load_observed(config, scene_top_k, humem_core::observe::unobserved())
     }
@@ -177,33 +186,50 @@ impl Perception {
             .scene
             .as_ref()
             .is_some_and(|s| s.shares_input_with(&config.descriptor));
-        let load_role = |name: &'static str, m: &ImageModelConfig, outputs: Vec<String>| {
-            let path = config.model_file(&m.model, m.precision)?;
-            let models = (0..workers)
-                .map(|_| {
-                    let session = runtime::session(&env, &path, m.precision.options(options))?;
-                    ImageModel::new(
-                        name,
-                        session,
-                        &m.input,
-                        &outputs,
-                        Some([m.width as usize, m.height as usize]),
-                    )
+        let mut descriptor_len = None;
+        let mut load_role =
+            |name: &'static str, m: &ImageModelConfig, outputs: Vec<String>, fits: GraphCheck| {
+                let path = config.model_file(&m.model, m.precision)?;
+                let models = (0..workers)
+                    .map(|worker| {
+                        let session = runtime::session(&env, &path, m.precision.options(options))?;
+                        if worker == 0 {
+                            let facts = fits(&check::Io::of(&session), config)
+                                .map_err(|e| RuntimeError::Check(Box::new(e)))?;
+                            descriptor_len = descriptor_len.or(facts.descriptor_len);
+                        }
+                        ImageModel::new(
+                            name,
+                            session,
+                            &m.input,
+                            &outputs,
+                            Some([m.width as usize, m.height as usize]),
+                        )
+                    })
+                    .collect::<Result<Vec<_>, RuntimeError>>()?;
+                tracing::info!(role = name, model = %path.display(), "model loaded");
+                Ok::<_, RuntimeError>(ImageRole {
+                    batcher: Batcher::spawn(name, models, batching, observer.clone()),
+                    config: m.clone(),
                 })
-                .collect::<Result<Vec<_>, RuntimeError>>()?;
-            tracing::info!(role = name, model = %path.display(), "model loaded");
-            Ok::<_, RuntimeError>(ImageRole {
-                batcher: Batcher::spawn(name, models, batching, observer.clone()),
-                config: m.clone(),
-            })
-        };
+            };
         let mut global_outputs = vec![config.descriptor.output.clone()];
         if scene_in_global {
             global_outputs.extend(config.scene.as_ref().map(|s| s.output.clone()));
         }
-        let global = load_role("descriptor", &config.descriptor, global_outputs)?;
+        let global = load_role(
+            "descriptor",
+            &config.descriptor,
+            global_outputs,
+            |io, config| check::graph::descriptor(io, config, &[]),
+        )?;
         let scene = match &config.scene {
-            Some(s) if !scene_in_global => Some(load_role("scene", s, vec![s.output.clone()])?),
+            Some(s) if !scene_in_global => Some(load_role(
+                "scene",
+                s,
+                vec![s.output.clone()],
+                check::graph::scene,
+            )?),
             _ => None,
         };
         let ocr = match &config.ocr {
@@ -221,8 +247,8 @@ impl Perception {
                 let recognizer_path =
                     config.model_file(&ocr_config.recognizer, ocr_config.recognizer_precision)?;
                 let sessions = (0..workers)
-                    .map(|_| {
-                        Ok((
+                    .map(|worker| {
+                        let pair = (
                             runtime::session(
                                 &env,
                                 &detector_path,
@@ -233,7 +259,20 @@ impl Perception {
                                 &recognizer_path,
                                 ocr_config.recognizer_precision.options(options),
                             )?,
-                        ))
+                        );
+                        if worker == 0 {
+                            check::graph::ocr_detector(&check::Io::of(&pair.0), config)
+                                .and_then(|_| {
+                                    check::graph::ocr_recognizer(
+                                        &check::Io::of(&pair.1),
+                                        config,
+                                        ocr_config,
+                                        dictionary.len(),
+                                    )
+                                })
+                                .map_err(|e| RuntimeError::Check(Box::new(e)))?;
+                        }
+                        Ok(pair)
                     })
                     .collect::<Result<Vec<_>, RuntimeError>>()?;
                 let models = OcrModels::new(sessions, ocr_config, Arc::new(dictionary))?;
@@ -264,7 +303,14 @@ impl Perception {
                 .unwrap_or_default(),
             scene_top_k,
             appearance: config.appearance,
+            descriptor_len,
         })
+    }
+
+    /// The descriptor's length, where its graph fixes it (`None`: known
+    /// only from an image).
+    pub fn descriptor_len(&self) -> Option<usize> {
+        self.descriptor_len
     }
 
     /// Turns an image into features: descriptor, scene distribution, and
@@ -420,7 +466,7 @@ impl Perception {
 }
 
 /// The normalised input of an image model.
-fn model_input(image: &RgbImage, config: &ImageModelConfig) -> Planes {
+pub(crate) fn model_input(image: &RgbImage, config: &ImageModelConfig) -> Planes {
     let resized = image::resize(image, config.width, config.height);
     let mut data = Vec::with_capacity(3 * (config.width * config.height) as usize);
     image::append_chw(
@@ -453,7 +499,7 @@ fn descriptor(output: Option<(Vec<usize>, Vec<f32>)>) -> Result<Vec<f32>, Percep
 /// The `k` most probable classes of a probability vector. Outputs that are
 /// not probabilities (negative values or a sum above 1) are treated as
 /// logits and go through a softmax first.
-fn top_classes(values: &[f32], k: usize) -> Vec<SceneClass> {
+pub(crate) fn top_classes(values: &[f32], k: usize) -> Vec<SceneClass> {
     let finite = values.iter().all(|v| v.is_finite());
     if !finite || values.is_empty() {
         return Vec::new();

@@ -15,6 +15,7 @@ use std::time::Duration;
 use image::RgbImage;
 
 use super::batcher::{BatchConfig, BatchError, Batcher};
+use super::check::graph::Io;
 use super::config::{DetectorConfig, PerceptionConfig, YoloLayout};
 use super::geometry::Rect;
 use super::image::resize;
@@ -125,9 +126,13 @@ impl Detector {
         let mut outputs = vec![config.output.clone()];
         outputs.extend(config.masks_output.clone());
         let models = (0..perception.workers.max(1))
-            .map(|_| {
+            .map(|worker| {
                 let options = config.precision.options(perception.session_options());
                 let session = runtime::session(env, &path, options)?;
+                if worker == 0 {
+                    crate::check::graph::detector(&Io::of(&session), perception, config)
+                        .map_err(|e| RuntimeError::Check(Box::new(e)))?;
+                }
                 let size = config.size as usize;
                 ImageModel::new(
                     "detector",
@@ -181,63 +186,76 @@ impl Detector {
         values: &[f32],
         masks: Option<&(Vec<usize>, Vec<f32>)>,
         letterbox: Letterbox,
-        [width, height]: [u32; 2],
+        size: [u32; 2],
     ) -> Result<Vec<DetectedObject>, yolo::YoloError> {
-        let c = &self.config;
-        let num_masks = masks.map_or(0, |(s, _)| s.first().copied().unwrap_or(0));
-        let layout = match c.layout {
-            YoloLayout::Anchors => Layout::Anchors,
-            YoloLayout::EndToEnd => Layout::EndToEnd,
-        };
-        let mut batch_shape = vec![1];
-        batch_shape.extend_from_slice(shape);
-        let mut detections = yolo::decode(
-            values,
-            &batch_shape,
-            layout,
-            c.classes.len(),
-            num_masks,
-            c.confidence,
-        )?;
-        if layout == Layout::Anchors {
-            detections = yolo::nms(detections, c.iou, c.max_objects);
-        }
-        detections.truncate(c.max_objects);
-        let size = c.size as usize;
-        let (w, h) = (width as f32, height as f32);
-        let mut objects = Vec::new();
-        for det in detections {
-            let class_name = &c.classes[det.class_id];
-            if !c.keep.is_empty() && !c.keep.contains(class_name) {
-                continue;
-            }
-            let [x0, y0] = letterbox.to_image([det.rect.x0, det.rect.y0]);
-            let [x1, y1] = letterbox.to_image([det.rect.x1, det.rect.y1]);
-            let rect = Rect { x0, y0, x1, y1 }.clamp(w, h);
-            if rect.width() <= 0.0 || rect.height() <= 0.0 {
-                continue;
-            }
-            let from_mask = masks.and_then(|(mshape, protos)| match mshape[..] {
-                [nm, mh, mw] => yolo::mask_stats(protos, [nm, mh, mw], &det, [size, size]),
-                _ => None,
-            });
-            let (centroid, area) = match from_mask {
-                Some(m) => (
-                    letterbox.to_image(m.centroid),
-                    m.area / (letterbox.scale * letterbox.scale),
-                ),
-                None => (rect.center(), rect.area()),
-            };
-            objects.push(DetectedObject {
-                class_name: class_name.clone(),
-                confidence: det.score.clamp(0.0, 1.0),
-                rect,
-                centroid: [centroid[0].clamp(0.0, w), centroid[1].clamp(0.0, h)],
-                area: area.clamp(0.0, w * h),
-            });
-        }
-        Ok(objects)
+        decode_objects(&self.config, shape, values, masks, letterbox, size)
     }
+}
+
+/// Decodes one image's outputs (shapes without the batch axis) of the
+/// detector configured by `c`: detections of the kept classes, suppressed
+/// and mapped back to the `width` × `height` image through `letterbox`.
+pub fn decode_objects(
+    c: &DetectorConfig,
+    shape: &[usize],
+    values: &[f32],
+    masks: Option<&(Vec<usize>, Vec<f32>)>,
+    letterbox: Letterbox,
+    [width, height]: [u32; 2],
+) -> Result<Vec<DetectedObject>, yolo::YoloError> {
+    let num_masks = masks.map_or(0, |(s, _)| s.first().copied().unwrap_or(0));
+    let layout = match c.layout {
+        YoloLayout::Anchors => Layout::Anchors,
+        YoloLayout::EndToEnd => Layout::EndToEnd,
+    };
+    let mut batch_shape = vec![1];
+    batch_shape.extend_from_slice(shape);
+    let mut detections = yolo::decode(
+        values,
+        &batch_shape,
+        layout,
+        c.classes.len(),
+        num_masks,
+        c.confidence,
+    )?;
+    if layout == Layout::Anchors {
+        detections = yolo::nms(detections, c.iou, c.max_objects);
+    }
+    detections.truncate(c.max_objects);
+    let size = c.size as usize;
+    let (w, h) = (width as f32, height as f32);
+    let mut objects = Vec::new();
+    for det in detections {
+        let class_name = &c.classes[det.class_id];
+        if !c.keep.is_empty() && !c.keep.contains(class_name) {
+            continue;
+        }
+        let [x0, y0] = letterbox.to_image([det.rect.x0, det.rect.y0]);
+        let [x1, y1] = letterbox.to_image([det.rect.x1, det.rect.y1]);
+        let rect = Rect { x0, y0, x1, y1 }.clamp(w, h);
+        if rect.width() <= 0.0 || rect.height() <= 0.0 {
+            continue;
+        }
+        let from_mask = masks.and_then(|(mshape, protos)| match mshape[..] {
+            [nm, mh, mw] => yolo::mask_stats(protos, [nm, mh, mw], &det, [size, size]),
+            _ => None,
+        });
+        let (centroid, area) = match from_mask {
+            Some(m) => (
+                letterbox.to_image(m.centroid),
+                m.area / (letterbox.scale * letterbox.scale),
+            ),
+            None => (rect.center(), rect.area()),
+        };
+        objects.push(DetectedObject {
+            class_name: class_name.clone(),
+            confidence: det.score.clamp(0.0, 1.0),
+            rect,
+            centroid: [centroid[0].clamp(0.0, w), centroid[1].clamp(0.0, h)],
+            area: area.clamp(0.0, w * h),
+        });
+    }
+    Ok(objects)
 }
 
 fn error(message: String) -> BatchError {

@@ -65,6 +65,10 @@ pub enum RuntimeError {
         /// Why it could not be loaded.
         message: String,
     },
+    /// A loaded model's graph does not fit its configuration (see
+    /// [`crate::check`]).
+    #[error(transparent)]
+    Check(Box<crate::check::CheckError>),
     /// A loaded model lacks a configured input or output, or an inference
     /// failed or gave outputs of an unexpected shape.
     #[error("model {model}: {message}")]

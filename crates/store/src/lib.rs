@@ -319,6 +319,36 @@ const META_LOG_POSITION: &[u8] = b"log_position";
 /// instead of writing to it unjournaled.
 pub const STORE_FORMAT: u32 = 3;
 
+/// The descriptor length the store in `dir` records, without creating or
+/// changing a store: `None` where `dir` holds no store, or one whose length
+/// is not fixed yet. Opens sled (which admits one process, so it fails
+/// while a server runs on `dir`) and reads the meta tree only.
+pub fn recorded_dim(dir: &Path) -> Result<Option<usize>, StoreError> {
+    // sled keeps its configuration and log in these two files.
+    if !dir.join("conf").is_file() && !dir.join("db").is_file() {
+        return Ok(None);
+    }
+    let db = sled::Config::new()
+        .path(dir)
+        .open()
+        .map_err(|source| StoreError::Open {
+            path: dir.display().to_string(),
+            source,
+        })?;
+    if !db
+        .tree_names()
+        .iter()
+        .any(|name| name == META_TREE.as_bytes())
+    {
+        return Ok(None);
+    }
+    let dim = db
+        .open_tree(META_TREE)?
+        .get(META_DIM)?
+        .map(|v| u32::from_be_bytes(v.as_ref().try_into().unwrap_or([0; 4])) as usize);
+    Ok(dim.filter(|&d| d > 0))
+}
+
 impl Store {
     /// Opens (or creates) the store in `dir` and loads its index.
     /// `dim` pins the descriptor length (0: taken from the first keyframe).

@@ -271,3 +271,42 @@ async fn a_version_1_store_opens_upgraded_and_keeps_its_records() {
         &STORE_FORMAT.to_be_bytes()
     );
 }
+
+#[tokio::test]
+async fn the_recorded_length_is_read_without_creating_a_store() {
+    let dir = tempfile::tempdir().unwrap();
+    let data = dir.path().join("data");
+    assert_eq!(recorded_dim(&data).unwrap(), None);
+    std::fs::create_dir(&data).unwrap();
+    assert_eq!(recorded_dim(&data).unwrap(), None);
+    assert_eq!(
+        std::fs::read_dir(&data).unwrap().count(),
+        0,
+        "nothing created"
+    );
+    {
+        let store = Store::open(&data, 0, 16).unwrap();
+        store.flush().unwrap();
+    }
+    let read_when_free = || {
+        let deadline = std::time::Instant::now() + std::time::Duration::from_secs(5);
+        loop {
+            match recorded_dim(&data) {
+                Err(StoreError::Open { .. }) if std::time::Instant::now() < deadline => {
+                    std::thread::sleep(std::time::Duration::from_millis(20))
+                }
+                result => return result.unwrap(),
+            }
+        }
+    };
+    assert_eq!(read_when_free(), None, "no length fixed yet");
+    {
+        let store = reopen(&data, 0);
+        store
+            .apply(Mutation::Insert(vec![kf("a", "s", 1, 0)]))
+            .await
+            .unwrap();
+        store.flush().unwrap();
+    }
+    assert_eq!(read_when_free(), Some(3));
+}

@@ -55,11 +55,15 @@ fn status_error(call: &str, status: tonic::Status) -> anyhow::Error {
 pub async fn run_client(command: Command) -> anyhow::Result<()> {
     match command {
         Command::Load(args) => super::load::run(args).await?,
-        Command::Serve(_) | Command::Export { .. } | Command::Token(_) | Command::Probe { .. } => {
+        Command::Serve(_)
+        | Command::Export { .. }
+        | Command::Token(_)
+        | Command::Probe { .. }
+        | Command::Models(_) => {
             bail!("not a client command")
         }
         #[cfg(feature = "eval")]
-        Command::Bench(_) | Command::Eval(_) | Command::TextRecall(_) => {
+        Command::Bench(_) | Command::Eval(_) | Command::Ingest(_) | Command::TextRecall(_) => {
             bail!("not a client command")
         }
         Command::Insert {

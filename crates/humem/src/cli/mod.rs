@@ -9,6 +9,7 @@ pub(crate) mod client;
 pub mod cluster_bench;
 pub mod export;
 pub mod load;
+pub mod models;
 pub mod probe;
 pub mod token;
 
@@ -109,6 +110,11 @@ pub enum Command {
     /// and degradations as options).
     #[cfg(feature = "eval")]
     Eval(humem_eval::run::EvalArgs),
+    /// Streams a recording (a bag, a TUM, EuRoC or KITTI folder, a HuMem
+    /// folder) into a running server as a robot would, and prints the loop
+    /// candidates it got, scored against the recording's poses.
+    #[cfg(feature = "eval")]
+    Ingest(humem_eval::ingest::IngestArgs),
     /// Text recall of the OCR on data sets with poses and sign positions:
     /// the share of frames with a distinctive sign in view where OCR reads
     /// it, and OCR time per image.
@@ -125,6 +131,9 @@ pub enum Command {
     /// Manage the bearer tokens robots authenticate with.
     #[command(subcommand)]
     Token(token::TokenCommand),
+    /// Check the configured models before they meet a robot.
+    #[command(subcommand)]
+    Models(models::ModelsCommand),
     /// Drive a running server from simulated robots and print the achieved
     /// rate, latency percentiles, superseded queries and errors.
     Load(load::LoadArgs),

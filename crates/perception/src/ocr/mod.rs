@@ -77,6 +77,23 @@ pub struct LineInput {
 }
 
 impl LineRecognizer {
+    /// Wraps a recogniser session (its first input and first output) that
+    /// reads lines `height` pixels high into `dictionary`'s characters.
+    pub fn new(
+        session: Session,
+        height: u32,
+        dictionary: Arc<Dictionary>,
+    ) -> Result<LineRecognizer, RuntimeError> {
+        let (input, output) = io_names(&session, "ocr recognizer")?;
+        Ok(LineRecognizer {
+            session,
+            input,
+            output,
+            height: height as usize,
+            dictionary,
+        })
+    }
+
     fn error(&self, message: impl Into<String>) -> RuntimeError {
         RuntimeError::Run {
             model: "ocr recognizer".into(),
@@ -174,28 +191,25 @@ impl OcrModels {
         let mut detectors = Vec::new();
         let mut recognizers = Vec::new();
         for (det, rec) in sessions {
-            let (det_input, det_output) = io_names(&det, "ocr detector")?;
-            let (rec_input, rec_output) = io_names(&rec, "ocr recognizer")?;
-            detectors.push(ImageModel::new(
-                "ocr detector",
-                det,
-                &det_input,
-                &[det_output],
-                None,
+            detectors.push(text_detector(det)?);
+            recognizers.push(LineRecognizer::new(
+                rec,
+                config.line_height,
+                dictionary.clone(),
             )?);
-            recognizers.push(LineRecognizer {
-                input: rec_input,
-                output: rec_output,
-                session: rec,
-                height: config.line_height as usize,
-                dictionary: dictionary.clone(),
-            });
         }
         Ok(OcrModels {
             detectors,
             recognizers,
         })
     }
+}
+
+/// Wraps a text detector session (its first input and first output), a
+/// fully convolutional model that takes any size.
+pub fn text_detector(session: Session) -> Result<ImageModel, RuntimeError> {
+    let (input, output) = io_names(&session, "ocr detector")?;
+    ImageModel::new("ocr detector", session, &input, &[output], None)
 }
 
 /// The names of a session's first input and first output.
