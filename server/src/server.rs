@@ -184,6 +184,8 @@ pub async fn serve(config: Config) -> anyhow::Result<()> {
         data_dir = %config.store.data_dir.display(),
         "humem serving"
     );
+    // Before the line below: a stop from then on shuts down cleanly.
+    let stop_requested = shutdown_signal();
     // One plain line on stdout, for scripts and tests that asked for port 0.
     println!("humem listening on {local}");
     let _ = serving_tx.send(true);
@@ -216,7 +218,7 @@ pub async fn serve(config: Config) -> anyhow::Result<()> {
         .add_service(reflection_v1alpha)
         .add_service(api);
     let shutdown = async move {
-        shutdown_signal().await;
+        stop_requested.await;
         tracing::info!("shutdown requested: finishing in-flight requests");
         let _ = serving_tx.send(false);
         let _ = stop_tx.send(true);
@@ -340,26 +342,36 @@ fn check_nats_exposure(config: &Config) -> anyhow::Result<()> {
     )
 }
 
-async fn shutdown_signal() {
-    let ctrl_c = async {
-        let _ = tokio::signal::ctrl_c().await;
-    };
+/// Ctrl-C or SIGTERM. The handlers are installed when this is called, not
+/// when the future is first polled: the server calls it before it says it
+/// is listening, so a stop that arrives right after start (a supervisor, a
+/// test) is a clean shutdown, not the signal's default death.
+fn shutdown_signal() -> impl std::future::Future<Output = ()> {
     #[cfg(unix)]
-    let term = async {
-        match tokio::signal::unix::signal(tokio::signal::unix::SignalKind::terminate()) {
-            Ok(mut s) => {
-                s.recv().await;
-            }
-            Err(e) => {
-                tracing::warn!(error = %e, "cannot listen for SIGTERM");
-                std::future::pending::<()>().await
+    {
+        use tokio::signal::unix::{signal, SignalKind};
+        let streams = [SignalKind::interrupt(), SignalKind::terminate()].map(signal);
+        async move {
+            let [interrupt, terminate] = streams;
+            let wait = |stream: std::io::Result<tokio::signal::unix::Signal>| async move {
+                match stream {
+                    Ok(mut s) => {
+                        s.recv().await;
+                    }
+                    Err(e) => {
+                        tracing::warn!(error = %e, "cannot listen for a stop signal");
+                        std::future::pending::<()>().await
+                    }
+                }
+            };
+            tokio::select! {
+                _ = wait(interrupt) => {},
+                _ = wait(terminate) => {},
             }
         }
-    };
+    }
     #[cfg(not(unix))]
-    let term = std::future::pending::<()>();
-    tokio::select! {
-        _ = ctrl_c => {},
-        _ = term => {},
+    async {
+        let _ = tokio::signal::ctrl_c().await;
     }
 }
