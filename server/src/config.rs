@@ -503,6 +503,31 @@ mod tests {
     }
 
     #[test]
+    fn a_users_model_runs_in_fp32_unless_it_says_int8() {
+        use humem_perception::config::Precision;
+        let defaults = Config::load(None, Figment::new()).unwrap();
+        assert_eq!(defaults.perception.descriptor.precision(), Precision::Int8);
+        let dir = tempfile::tempdir().unwrap();
+        let file = dir.path().join("humem.toml");
+        let section =
+            "[perception.descriptor]\nmodel = \"/opt/eigenplaces.onnx\"\noutput = \"descriptor\"\n";
+        std::fs::write(&file, section).unwrap();
+        let config = Config::load(Some(&file), Figment::new()).unwrap();
+        assert_eq!(config.perception.descriptor.precision(), Precision::Fp32);
+        std::fs::write(&file, format!("{section}precision = \"int8\"\n")).unwrap();
+        let config = Config::load(Some(&file), Figment::new()).unwrap();
+        assert_eq!(config.perception.descriptor.precision(), Precision::Int8);
+        // The shipped model named again keeps its default.
+        std::fs::write(
+            &file,
+            "[perception.descriptor]\nmodel = \"efficientnet-lite0/efficientnet_lite0.onnx\"\n",
+        )
+        .unwrap();
+        let config = Config::load(Some(&file), Figment::new()).unwrap();
+        assert_eq!(config.perception.descriptor.precision(), Precision::Int8);
+    }
+
+    #[test]
     fn cluster_settings_are_checked_at_load() {
         let dir = tempfile::tempdir().unwrap();
         let file = dir.path().join("humem.toml");

@@ -183,7 +183,7 @@ async fn descriptors_match_the_python_reference() {
         };
         config.descriptor.width = size[0];
         config.descriptor.height = size[1];
-        config.descriptor.precision = precision;
+        config.descriptor.precision = Some(precision);
         let perception = Perception::load(&config, 5).expect("models load");
         let model = models.join(precision.file(&defaults.descriptor.model));
         let expected = reference(&python, &model, size, &images);

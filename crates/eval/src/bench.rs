@@ -421,8 +421,8 @@ fn models_alone(
         "descriptor",
         runtime::session(
             &env,
-            &p.model_file(&d.model, d.precision)?,
-            d.precision.options(options),
+            &p.model_file(&d.model, d.precision())?,
+            d.precision().options(options),
         )?,
         &d.input,
         &outputs,

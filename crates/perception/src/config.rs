@@ -152,7 +152,7 @@ fn efficientnet(output: &str) -> ImageModelConfig {
         mean: LITE_MEAN,
         std: LITE_STD,
         output: output.into(),
-        precision: DESCRIPTOR_PRECISION,
+        precision: None,
         input_multiple: 0,
         output_len: None,
     }
@@ -264,9 +264,12 @@ pub struct ImageModelConfig {
     /// Output tensor name: `[N, D]` descriptor, or `[N, C]` class
     /// probabilities for the scene role.
     pub output: String,
-    /// `fp32` (the file as named) or `int8` (its quantisation beside it).
-    #[serde(default)]
-    pub precision: Precision,
+    /// `fp32` (the file as named) or `int8` (its quantisation beside it);
+    /// unset: int8 for the shipped EfficientNet-Lite0 (measured to keep
+    /// parity) and fp32 for any other model, which has no int8 file unless
+    /// its user makes one ([`ImageModelConfig::precision`]).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub precision: Option<Precision>,
     /// `width` and `height` must be multiples of this, for a model whose
     /// graph takes any size but works only on whole patches (a ViT/14, e.g.
     /// DINOv2: 14); 0 or 1: any size. Checked when the model loads and by
@@ -282,6 +285,19 @@ pub struct ImageModelConfig {
 }
 
 impl ImageModelConfig {
+    /// The precision that runs: the configured one, else int8 for the
+    /// shipped EfficientNet-Lite0 and fp32 for any other model (a section
+    /// that names a user's model without a precision must not go looking
+    /// for an int8 file that was never made).
+    pub fn precision(&self) -> Precision {
+        self.precision
+            .unwrap_or(if self.model == Path::new(EFFICIENTNET) {
+                DESCRIPTOR_PRECISION
+            } else {
+                Precision::Fp32
+            })
+    }
+
     /// Same file and same input: one inference can serve both.
     pub fn shares_input_with(&self, other: &ImageModelConfig) -> bool {
         self.model == other.model
@@ -290,7 +306,7 @@ impl ImageModelConfig {
             && self.height == other.height
             && self.mean == other.mean
             && self.std == other.std
-            && self.precision == other.precision
+            && self.precision() == other.precision()
     }
 
     fn validate(&self) -> Result<(), String> {

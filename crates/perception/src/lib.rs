@@ -189,10 +189,11 @@ impl Perception {
         let mut descriptor_len = None;
         let mut load_role =
             |name: &'static str, m: &ImageModelConfig, outputs: Vec<String>, fits: GraphCheck| {
-                let path = config.model_file(&m.model, m.precision)?;
+                let path = config.model_file(&m.model, m.precision())?;
                 let models = (0..workers)
                     .map(|worker| {
-                        let session = runtime::session(&env, &path, m.precision.options(options))?;
+                        let session =
+                            runtime::session(&env, &path, m.precision().options(options))?;
                         if worker == 0 {
                             let facts = fits(&check::Io::of(&session), config)
                                 .map_err(|e| RuntimeError::Check(Box::new(e)))?;

@@ -276,7 +276,7 @@ pub fn check_models(
         .scene
         .as_ref()
         .is_some_and(|s| s.shares_input_with(&config.descriptor));
-    let mut descriptor = ModelReport::new("perception.descriptor", config.descriptor.precision);
+    let mut descriptor = ModelReport::new("perception.descriptor", config.descriptor.precision());
     let mut scene_lines = Vec::new();
     if let Some(session) = descriptor.load(&env, config, &config.descriptor.model) {
         let io = descriptor.io.clone().unwrap_or_else(|| Io::of(&session));
@@ -294,9 +294,9 @@ pub fn check_models(
     reports.push(descriptor);
 
     if let Some(s) = &config.scene {
-        let mut scene = ModelReport::new("perception.scene", s.precision);
+        let mut scene = ModelReport::new("perception.scene", s.precision());
         if shared_scene {
-            scene.file = config.model_file(&s.model, s.precision).ok();
+            scene.file = config.model_file(&s.model, s.precision()).ok();
             scene.notes.push(
                 "same file and input as perception.descriptor: one inference gives both".into(),
             );
