@@ -149,6 +149,35 @@ mod tests {
     }
 
     #[test]
+    fn images_without_poses_are_counted_and_none_at_all_is_an_error() {
+        let poses = [timed(10.0, 0.0, 0.0), timed(11.0, 1.0, 0.0)];
+        let rule = KeyframeRule::every_image();
+        let p = plan(
+            &[10.0, 10.5, 11.0, 30.0],
+            &poses,
+            0.6,
+            &rule,
+            "/cam",
+            "/odom",
+        )
+        .unwrap();
+        assert_eq!((p.images, p.without_pose, p.keyframes.len()), (4, 1, 3));
+        assert_eq!(p.keyframes[1].0, 1);
+        assert!((p.keyframes[1].2.t.x - 0.5).abs() < 1e-12);
+        let err = plan(&[1.0, 2.0], &poses, 0.1, &rule, "/cam", "/odom")
+            .unwrap_err()
+            .to_string();
+        assert!(
+            err.contains("no image from /cam has a pose from /odom within 0.1 s"),
+            "{err}"
+        );
+        assert!(
+            err.contains("2 images at 1.000 .. 2.000 s, 2 poses at 10.000 .. 11.000 s"),
+            "{err}"
+        );
+    }
+
+    #[test]
     fn keyframes_follow_distance_angle_and_time() {
         let frames: Vec<(f64, Pose)> = [
             (0.0, 0.0, 0.0),
