@@ -484,6 +484,10 @@ async fn reads_are_narrowed_to_the_maps_the_rules_share_for_every_scope() {
         let mut robots: Vec<_> = stats.maps.iter().map(|m| m.robot_id.as_str()).collect();
         robots.sort();
         assert_eq!(robots, readable, "{asker}");
+        // Nor is anything counted of the others: 20 keyframes a readable
+        // robot, and not the size of the whole store.
+        assert_eq!(stats.keyframes, 20 * readable.len() as u64, "{asker}");
+        assert_eq!(stats.disk_bytes, 0, "{asker}");
     }
     assert_eq!(cases, 18);
     // The admin, acting for car-1, reads every robot.

@@ -295,19 +295,22 @@ impl PlaceRecognition for PlaceRecognitionService {
         request: Request<proto::StatsRequest>,
     ) -> Result<Response<proto::StatsResponse>, Status> {
         let caller = self.auth.caller("Stats", &request)?;
-        // Only the maps the caller may read are listed.
+        // A caller that may read only some robots hears only of those: the
+        // maps, keyframes and verdicts of its readable robots, and not the
+        // size of a store that holds everyone's (disk_bytes 0).
         let readable = caller.readable_robots(self.auth.groups());
+        let may_read = |robot: &str| {
+            readable
+                .as_ref()
+                .is_none_or(|r| r.iter().any(|x| x == robot))
+        };
         let (keyframes, descriptor_dim, maps, verdicts, point) = {
             let index = self.pipeline.store().index();
             let point = index.operating_point(self.pipeline.params(), unix_now());
-            let maps = index
+            let maps: Vec<proto::MapStats> = index
                 .map_counts()
                 .into_iter()
-                .filter(|(map, _)| {
-                    readable
-                        .as_ref()
-                        .is_none_or(|r| r.contains(&map.session.robot_id))
-                })
+                .filter(|(map, _)| may_read(&map.session.robot_id))
                 .map(|(map, count)| proto::MapStats {
                     robot_id: map.session.robot_id,
                     session_id: map.session.session_id,
@@ -315,19 +318,28 @@ impl PlaceRecognition for PlaceRecognitionService {
                     keyframes: count as u64,
                 })
                 .collect();
-            (
-                index.len() as u64,
-                index.dim() as u32,
-                maps,
-                index.verdicts().len() as u64,
-                point,
-            )
+            let (keyframes, verdicts) = match &readable {
+                None => (index.len() as u64, index.verdicts().len() as u64),
+                Some(_) => (
+                    maps.iter().map(|m| m.keyframes).sum(),
+                    index
+                        .verdicts()
+                        .iter()
+                        .filter(|v| may_read(&v.query.robot_id))
+                        .count() as u64,
+                ),
+            };
+            (keyframes, index.dim() as u32, maps, verdicts, point)
+        };
+        let disk_bytes = match readable {
+            None => self.pipeline.store().disk_bytes(),
+            Some(_) => 0,
         };
         Ok(Response::new(proto::StatsResponse {
             keyframes,
             descriptor_dim,
             maps,
-            disk_bytes: self.pipeline.store().disk_bytes(),
+            disk_bytes,
             format_version: humem_store::STORE_FORMAT,
             server_version: env!("CARGO_PKG_VERSION").into(),
             log_position: self.pipeline.log_position(),
