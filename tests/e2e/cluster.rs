@@ -498,3 +498,80 @@ async fn nats_connections_use_tls_and_credentials() {
     assert!(!ok);
     assert!(stderr.contains("refusing to reach NATS"), "{stderr}");
 }
+
+/// A replica whose applier halted (here on an entry from a newer build)
+/// refuses queries with UNAVAILABLE and the reason; one configured with
+/// `cluster.serve_stale_reads` goes on answering from its store.
+#[tokio::test(flavor = "multi_thread")]
+async fn a_halted_replica_refuses_queries_unless_told_to_serve_stale_reads() {
+    if !nats::available() {
+        return;
+    }
+    let nats = NatsCluster::start(1);
+    let dirs: Vec<_> = (0..2).map(|_| tempfile::tempdir().unwrap()).collect();
+    let start = |dir: &std::path::Path, name: &str, stale: bool| {
+        let settings = [
+            "HUMEM_CLUSTER__ENABLED=true".to_string(),
+            format!("HUMEM_CLUSTER__NATS_URLS={}", nats.urls_setting()),
+            "HUMEM_CLUSTER__STREAM_REPLICAS=1".to_string(),
+            format!("HUMEM_CLUSTER__REPLICA_NAME={name}"),
+            format!("HUMEM_CLUSTER__SERVE_STALE_READS={stale}"),
+        ];
+        let settings: Vec<&str> = settings.iter().map(String::as_str).collect();
+        Server::start_with(dir, &settings)
+    };
+    let strict = start(dirs[0].path(), "strict", false);
+    let stale = start(dirs[1].path(), "stale", true);
+    let mut world = World::new(10, 3);
+    let drive = scenes::loop_drive(&mut world, "r", "s", 0, 10, 5);
+    let mut last = 0;
+    for (kf, _) in &drive {
+        last = strict
+            .client()
+            .await
+            .insert(proto::InsertRequest {
+                keyframe: Some(kf.clone()),
+            })
+            .await
+            .unwrap()
+            .into_inner()
+            .log_sequence;
+    }
+    let newest = scenes::id(&drive.last().unwrap().0);
+    for server in [&strict, &stale] {
+        ask(server, "r", newest, last).await.unwrap();
+    }
+
+    // An entry in a format from the future: both appliers halt on it.
+    nats::publish_raw(
+        nats.client_port(0),
+        "humem.writes",
+        ("Humem-Log-Format", "999"),
+        b"from a newer humem",
+    );
+    let started = Instant::now();
+    let refused = loop {
+        match ask(&strict, "r", newest, 0).await {
+            Err(status) => break status,
+            Ok(_) => {
+                assert!(
+                    started.elapsed() < Duration::from_secs(20),
+                    "the strict replica still answers 20 s after the entry"
+                );
+                tokio::time::sleep(Duration::from_millis(50)).await;
+            }
+        }
+    };
+    assert_eq!(refused.code(), Code::Unavailable, "{refused:?}");
+    assert!(
+        refused
+            .message()
+            .contains("this replica stopped applying the write log"),
+        "{refused:?}"
+    );
+    assert!(refused.message().contains("999"), "{refused:?}");
+    // The other has halted too (its readiness says so), and answers all
+    // the same, as configured.
+    let answered = ask(&stale, "r", newest, 0).await.unwrap();
+    assert!(!answered.candidates.is_empty());
+}

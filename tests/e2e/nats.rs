@@ -173,6 +173,11 @@ impl NatsCluster {
         }
     }
 
+    /// Node `i`'s client port.
+    pub fn client_port(&self, i: usize) -> u16 {
+        self.nodes[i].client_port
+    }
+
     /// The client URLs of every node, as `cluster.nats_urls` takes them
     /// from the environment.
     pub fn urls_setting(&self) -> String {
@@ -194,6 +199,47 @@ impl Drop for NatsCluster {
     fn drop(&mut self) {
         for i in 0..self.nodes.len() {
             self.kill_node(i);
+        }
+    }
+}
+
+/// Publishes one message with one header on `subject` through node
+/// `port`, speaking NATS's text protocol (CONNECT, HPUB, then PING until
+/// PONG, so the server has taken it): an entry no HuMem build would
+/// write, for the tests of what a replica does with one.
+pub fn publish_raw(port: u16, subject: &str, header: (&str, &str), payload: &[u8]) {
+    use std::io::{BufRead, BufReader, Write};
+    let stream = std::net::TcpStream::connect(("127.0.0.1", port)).unwrap();
+    stream
+        .set_read_timeout(Some(Duration::from_secs(10)))
+        .unwrap();
+    let mut reader = BufReader::new(stream.try_clone().unwrap());
+    let mut line = String::new();
+    reader.read_line(&mut line).unwrap();
+    assert!(line.starts_with("INFO"), "{line}");
+    let headers = format!("NATS/1.0\r\n{}: {}\r\n\r\n", header.0, header.1);
+    let mut out = Vec::new();
+    out.extend_from_slice(b"CONNECT {\"verbose\":false,\"headers\":true,\"protocol\":1}\r\n");
+    out.extend_from_slice(
+        format!(
+            "HPUB {subject} {} {}\r\n{headers}",
+            headers.len(),
+            headers.len() + payload.len()
+        )
+        .as_bytes(),
+    );
+    out.extend_from_slice(payload);
+    out.extend_from_slice(b"\r\nPING\r\n");
+    (&stream).write_all(&out).unwrap();
+    loop {
+        line.clear();
+        assert!(
+            reader.read_line(&mut line).unwrap() > 0,
+            "NATS closed the connection"
+        );
+        assert!(!line.starts_with("-ERR"), "{line}");
+        if line.starts_with("PONG") {
+            return;
         }
     }
 }

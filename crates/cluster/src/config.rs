@@ -47,6 +47,12 @@ pub struct ClusterConfig {
     /// Longest a query asking for a log position waits for this replica to
     /// reach it, in milliseconds (less if its gRPC deadline is sooner).
     pub max_read_wait_ms: u64,
+    /// Whether a replica whose applier halted (an entry from a newer build,
+    /// entries removed before it applied them) still answers queries from
+    /// its store, which no longer follows the log. Off by default: such a
+    /// replica refuses queries with UNAVAILABLE and the reason, so a client
+    /// that ignores readiness is not answered from a stale store.
+    pub serve_stale_reads: bool,
     /// NATS credentials (`[cluster.auth]`).
     pub auth: NatsAuth,
     /// TLS to NATS (`[cluster.tls]`).
@@ -67,6 +73,7 @@ impl Default for ClusterConfig {
             publish_timeout_ms: 10_000,
             apply_timeout_ms: 10_000,
             max_read_wait_ms: 5_000,
+            serve_stale_reads: false,
             auth: NatsAuth::default(),
             tls: NatsTls::default(),
         }

@@ -335,6 +335,16 @@ impl Replica {
         self.inner.shared.halted.lock().clone()
     }
 
+    /// Whether this replica may answer a query: not once its applier has
+    /// halted (its store no longer follows the log), unless
+    /// `cluster.serve_stale_reads` says stale answers are wanted.
+    pub fn check_reads(&self) -> Result<(), ClusterError> {
+        if self.inner.config.serve_stale_reads {
+            return Ok(());
+        }
+        self.check_halted()
+    }
+
     fn check_halted(&self) -> Result<(), ClusterError> {
         match self.halted() {
             Some(why) => Err(ClusterError::Halted(why)),

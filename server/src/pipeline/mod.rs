@@ -238,6 +238,11 @@ impl Pipeline {
         mut spec: QuerySpec,
         deadline: Option<Duration>,
     ) -> Result<QueryAnswer, PipelineError> {
+        // A replica that stopped following the log answers nothing from
+        // its stale store (unless configured to).
+        if let Some(replica) = &self.replica {
+            replica.check_reads()?;
+        }
         let arrived = std::time::Instant::now();
         let kind = spec.kind.label();
         let slot = SlotKey {
