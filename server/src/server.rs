@@ -18,6 +18,17 @@ use humem_store::{Store, StoreOptions};
 
 /// Runs the service until a shutdown signal.
 pub async fn serve(config: Config) -> anyhow::Result<()> {
+    serve_watching(config, None).await
+}
+
+/// [`serve`], re-reading the access rules (`auth.groups`,
+/// `auth.certificate_admins`) from `rules_file` whenever it changes, through
+/// its [`RulesSource`](crate::auth::RulesSource) (the configuration loaded
+/// again as at start).
+pub async fn serve_watching(
+    config: Config,
+    rules_file: Option<(std::path::PathBuf, crate::auth::RulesSource)>,
+) -> anyhow::Result<()> {
     std::fs::create_dir_all(&config.store.data_dir).with_context(|| {
         format!(
             "creating data directory {}",
@@ -74,7 +85,7 @@ pub async fn serve(config: Config) -> anyhow::Result<()> {
     if let Some(perception) = &perception {
         descriptor_fits_store(perception, &config, store.index().dim())?;
     }
-    let auth = crate::auth::Authenticator::start(&config.auth, &config.server.tls)
+    let auth = crate::auth::Authenticator::start(&config.auth, &config.server.tls, rules_file)
         .context("loading the token file (auth.tokens_file)")?;
     check_exposure(&config, auth.enabled())?;
     metrics::init();

@@ -4,6 +4,7 @@
 //! the access rules share, and the refusal to serve a network address
 //! without TLS and credentials.
 
+use std::collections::BTreeSet;
 use std::path::{Path, PathBuf};
 use std::process::Command;
 use std::time::{Duration, Instant};
@@ -505,6 +506,83 @@ async fn reads_are_narrowed_to_the_maps_the_rules_share_for_every_scope() {
         .map(|c| c.robot_id.clone())
         .collect();
     assert_eq!(robots.len(), 3, "{robots:?}");
+}
+
+/// The robots whose maps `client`'s Stats lists.
+async fn robots_listed(client: &mut PlaceRecognitionClient<Connection>) -> Vec<String> {
+    let stats = client
+        .stats(proto::StatsRequest {})
+        .await
+        .unwrap()
+        .into_inner();
+    let robots: BTreeSet<String> = stats.maps.into_iter().map(|m| m.robot_id).collect();
+    robots.into_iter().collect()
+}
+
+#[tokio::test(flavor = "multi_thread")]
+async fn group_changes_take_effect_without_a_restart_and_a_broken_file_changes_nothing() {
+    let fleet = Fleet::start(false);
+    let car1 = fleet.token("car-1", false).await;
+    let car2 = fleet.token("car-2", false).await;
+    let mut world = World::new(5, 3);
+    for (robot, token) in [("car-1", &car1), ("car-2", &car2)] {
+        let keyframes: Vec<_> = scenes::loop_drive(&mut world, robot, "s", 0, 5, 0)
+            .into_iter()
+            .map(|(kf, _)| kf)
+            .collect();
+        fleet
+            .client(Some(token))
+            .await
+            .insert_batch(proto::InsertBatchRequest { keyframes })
+            .await
+            .unwrap();
+    }
+    let mut client = fleet.client(Some(&car1)).await;
+    assert_eq!(robots_listed(&mut client).await, ["car-1", "car-2"]);
+
+    let config = fleet.dir.join("humem.toml");
+    let text = std::fs::read_to_string(&config).unwrap();
+    let watcher = client.clone();
+    let wait_for = |expected: &'static [&'static str]| {
+        let mut client = watcher.clone();
+        async move {
+            let changed = Instant::now();
+            loop {
+                let listed = robots_listed(&mut client).await;
+                if listed == expected {
+                    return changed.elapsed();
+                }
+                assert!(
+                    changed.elapsed() < Duration::from_secs(2),
+                    "still {listed:?}, not {expected:?}, 2 s after the change"
+                );
+                tokio::time::sleep(Duration::from_millis(20)).await;
+            }
+        }
+    };
+    // car-2 leaves the group: car-1 stops reading its maps, no restart.
+    std::fs::write(
+        &config,
+        text.replace("north = [\"car-1\", \"car-2\"]", "north = [\"car-1\"]"),
+    )
+    .unwrap();
+    wait_for(&["car-1"]).await;
+    // A broken file (half written) changes nothing.
+    std::fs::write(&config, "[auth\ngroups = ").unwrap();
+    tokio::time::sleep(Duration::from_millis(800)).await;
+    assert_eq!(robots_listed(&mut client).await, ["car-1"]);
+    // Nor does a valid file whose settings are refused: a group's robots
+    // must be listed.
+    std::fs::write(
+        &config,
+        text.replace("north = [\"car-1\", \"car-2\"]", "north = 3"),
+    )
+    .unwrap();
+    tokio::time::sleep(Duration::from_millis(800)).await;
+    assert_eq!(robots_listed(&mut client).await, ["car-1"]);
+    // car-2 back in the group: shared again.
+    std::fs::write(&config, &text).unwrap();
+    wait_for(&["car-1", "car-2"]).await;
 }
 
 #[tokio::test(flavor = "multi_thread")]

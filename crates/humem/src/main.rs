@@ -37,7 +37,18 @@ async fn main() -> anyhow::Result<()> {
         Command::Serve(args) => {
             let config = Config::load(cli.config.as_deref(), args.overrides())?;
             init_logging(config.log.format, &config.log.filter);
-            humem_server::server::serve(config).await
+            // The access rules follow the configuration file while serving.
+            let rules_file = cli.config.clone().map(|file| {
+                let overrides = args.overrides();
+                let path = file.clone();
+                let reread: humem_server::auth::RulesSource = Box::new(move || {
+                    Config::load(Some(&path), overrides.clone())
+                        .map(|c| humem_server::auth::AccessRules::of(&c.auth))
+                        .map_err(|e| e.to_string())
+                });
+                (file, reread)
+            });
+            humem_server::server::serve_watching(config, rules_file).await
         }
         #[cfg(feature = "eval")]
         Command::Bench(BenchCommand::Perception(args)) => {

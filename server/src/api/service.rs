@@ -140,7 +140,7 @@ impl PlaceRecognition for PlaceRecognitionService {
             .check_acts_for("Query", &caller, "robot_id", &spec.session.robot_id)?;
         self.quotas.query(&spec.session.robot_id)?;
         // Every scope is narrowed to the robots the caller may read.
-        spec.readable_robots = caller.readable_robots(self.auth.groups());
+        spec.readable_robots = caller.readable_robots(&self.auth.rules().groups);
         let span = tracing::Span::current();
         span.record("robot", spec.session.robot_id.as_str());
         span.record("session", spec.session.session_id.as_str());
@@ -266,7 +266,7 @@ impl PlaceRecognition for PlaceRecognitionService {
         )?;
         // It may only name a candidate the robot may read (one HuMem could
         // have proposed to it).
-        if let Some(readable) = caller.readable_robots(self.auth.groups()) {
+        if let Some(readable) = caller.readable_robots(&self.auth.rules().groups) {
             if !readable.contains(&verdict.candidate.robot_id) {
                 return Err(Status::permission_denied(format!(
                     "candidate.robot_id: this caller may not read robot {:?}",
@@ -298,7 +298,7 @@ impl PlaceRecognition for PlaceRecognitionService {
         // A caller that may read only some robots hears only of those: the
         // maps, keyframes and verdicts of its readable robots, and not the
         // size of a store that holds everyone's (disk_bytes 0).
-        let readable = caller.readable_robots(self.auth.groups());
+        let readable = caller.readable_robots(&self.auth.rules().groups);
         let may_read = |robot: &str| {
             readable
                 .as_ref()

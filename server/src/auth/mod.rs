@@ -101,13 +101,37 @@ pub fn deny(rpc: &'static str, caller: &str, denial: Denial, reason: String) -> 
     status
 }
 
+/// The access rules that can change while the server runs: which robots
+/// share their maps, and which certificate names act as admins. Swapped
+/// whole, so a request sees the old rules or the new, never half of each.
+#[derive(Debug, Clone, Default, PartialEq, Eq)]
+pub struct AccessRules {
+    /// `auth.groups`: every robot of a group reads every other's maps.
+    pub groups: BTreeMap<String, Vec<String>>,
+    /// `auth.certificate_admins`: certificate names with the admin role.
+    pub certificate_admins: Vec<String>,
+}
+
+impl AccessRules {
+    /// The rules of an `[auth]` section.
+    pub fn of(auth: &AuthConfig) -> AccessRules {
+        AccessRules {
+            groups: auth.groups.clone(),
+            certificate_admins: auth.certificate_admins.clone(),
+        }
+    }
+}
+
+/// Reads the access rules again (the configuration file, as at start), or
+/// says why it cannot.
+pub type RulesSource = Box<dyn Fn() -> Result<AccessRules, String> + Send + 'static>;
+
 /// Authenticates requests against the token file and client certificates.
 #[derive(Clone)]
 pub struct Authenticator {
     enabled: bool,
     tokens: Arc<RwLock<HashMap<String, TokenRecord>>>,
-    groups: Arc<BTreeMap<String, Vec<String>>>,
-    certificate_admins: Arc<Vec<String>>,
+    rules: Arc<RwLock<Arc<AccessRules>>>,
 }
 
 impl Authenticator {
@@ -116,17 +140,22 @@ impl Authenticator {
         Authenticator {
             enabled: false,
             tokens: Arc::default(),
-            groups: Arc::default(),
-            certificate_admins: Arc::default(),
+            rules: Arc::default(),
         }
     }
 
     /// Reads the token file (an unreadable one stops the start) and, on a
     /// Tokio runtime, starts watching it: a token added or revoked takes
-    /// effect within a second.
+    /// effect within a second. With `rules_file`, the file the access rules
+    /// come from (the configuration file) is watched too: a change to
+    /// `auth.groups` or `auth.certificate_admins` takes effect within a
+    /// second, read through `reread`; a file that cannot be read or is
+    /// invalid keeps the rules in force, with a warning, as a broken token
+    /// file does.
     pub fn start(
         auth: &AuthConfig,
         tls: &TlsSettings,
+        rules_file: Option<(std::path::PathBuf, RulesSource)>,
     ) -> Result<Authenticator, tokens::TokenError> {
         let client_certificates =
             tls.client_ca.is_some() && tls.client_auth == ClientAuth::Required;
@@ -140,9 +169,35 @@ impl Authenticator {
         let authenticator = Authenticator {
             enabled,
             tokens: Arc::new(RwLock::new(table)),
-            groups: Arc::new(auth.groups.clone()),
-            certificate_admins: Arc::new(auth.certificate_admins.clone()),
+            rules: Arc::new(RwLock::new(Arc::new(AccessRules::of(auth)))),
         };
+        if let Some((path, reread)) = rules_file {
+            let files = vec![path];
+            let seen = crate::watch::Snapshot::of(&files);
+            let rules = Arc::downgrade(&authenticator.rules);
+            crate::watch::on_change(files, seen, move || {
+                let Some(rules) = rules.upgrade() else {
+                    return false;
+                };
+                match reread() {
+                    Ok(new) => {
+                        let mut current = rules.write().unwrap_or_else(|p| p.into_inner());
+                        if **current != new {
+                            tracing::info!(
+                                groups = new.groups.len(),
+                                certificate_admins = new.certificate_admins.len(),
+                                "access rules changed: reloaded (auth.groups, auth.certificate_admins)"
+                            );
+                            *current = Arc::new(new);
+                        }
+                    }
+                    Err(e) => {
+                        tracing::warn!(error = %e, "configuration file changed but cannot be read; keeping the access rules in force");
+                    }
+                }
+                true
+            });
+        }
         if let Some(path) = auth.tokens_file.clone() {
             let tokens = Arc::downgrade(&authenticator.tokens);
             crate::watch::on_change(files, seen, move || {
@@ -170,9 +225,10 @@ impl Authenticator {
         self.enabled
     }
 
-    /// The fleet groups of the access rules.
-    pub fn groups(&self) -> &BTreeMap<String, Vec<String>> {
-        &self.groups
+    /// The access rules in force now (one snapshot: use it for a whole
+    /// request).
+    pub fn rules(&self) -> Arc<AccessRules> {
+        self.rules.read().unwrap_or_else(|p| p.into_inner()).clone()
     }
 
     /// The caller of `request`: from its bearer token if it sends one, else
@@ -220,7 +276,7 @@ impl Authenticator {
         }
         if let Some(name) = certificate_name(request) {
             return Ok(Caller::Robot {
-                admin: self.certificate_admins.contains(&name),
+                admin: self.rules().certificate_admins.contains(&name),
                 credential: format!("certificate {name}"),
                 robot: name,
             });
@@ -328,6 +384,7 @@ mod tests {
                 ..AuthConfig::default()
             },
             &TlsSettings::default(),
+            None,
         )
         .unwrap();
         let with = |value: &str| {
