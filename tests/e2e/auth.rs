@@ -114,6 +114,20 @@ impl Fleet {
             .unwrap()
     }
 
+    /// Stores `robot`'s drive through places 0..n (session "s", map 0),
+    /// in one batch with its token.
+    async fn store_drive(&self, world: &mut World, robot: &str, token: &str, n: usize) {
+        let keyframes: Vec<_> = scenes::loop_drive(world, robot, "s", 0, n, 0)
+            .into_iter()
+            .map(|(kf, _)| kf)
+            .collect();
+        self.client(Some(token))
+            .await
+            .insert_batch(proto::InsertBatchRequest { keyframes })
+            .await
+            .unwrap();
+    }
+
     fn denied(&self, reason: &str) -> f64 {
         let exposition = self.server.scrape();
         exposition
@@ -413,17 +427,8 @@ async fn reads_are_narrowed_to_the_maps_the_rules_share_for_every_scope() {
     let mut world = World::new(20, 11);
     // Three robots drive the same places; car-1 and car-2 share group
     // "north", van-9 is in no group.
-    for (robot, token, map) in [("car-1", &car1, 0), ("car-2", &car2, 0), ("van-9", &van, 0)] {
-        let keyframes: Vec<_> = scenes::loop_drive(&mut world, robot, "s", map, 20, 0)
-            .into_iter()
-            .map(|(kf, _)| kf)
-            .collect();
-        fleet
-            .client(Some(token))
-            .await
-            .insert_batch(proto::InsertBatchRequest { keyframes })
-            .await
-            .unwrap();
+    for (robot, token) in [("car-1", &car1), ("car-2", &car2), ("van-9", &van)] {
+        fleet.store_drive(&mut world, robot, token, 20).await;
     }
     let query = |robot: &str, scope: proto::Scope, robots: &[&str]| proto::QueryRequest {
         robot_id: robot.into(),
@@ -526,16 +531,7 @@ async fn group_changes_take_effect_without_a_restart_and_a_broken_file_changes_n
     let car2 = fleet.token("car-2", false).await;
     let mut world = World::new(5, 3);
     for (robot, token) in [("car-1", &car1), ("car-2", &car2)] {
-        let keyframes: Vec<_> = scenes::loop_drive(&mut world, robot, "s", 0, 5, 0)
-            .into_iter()
-            .map(|(kf, _)| kf)
-            .collect();
-        fleet
-            .client(Some(token))
-            .await
-            .insert_batch(proto::InsertBatchRequest { keyframes })
-            .await
-            .unwrap();
+        fleet.store_drive(&mut world, robot, token, 5).await;
     }
     let mut client = fleet.client(Some(&car1)).await;
     assert_eq!(robots_listed(&mut client).await, ["car-1", "car-2"]);

@@ -18,12 +18,23 @@ use crate::scenes::{self, World};
 
 /// Starts a replica on `dir` joined to `nats`'s stream (3 copies).
 fn replica(nats: &NatsCluster, dir: &std::path::Path, name: &str) -> Server {
-    let settings = [
+    replica_with(
+        nats,
+        dir,
+        name,
+        &["HUMEM_CLUSTER__STREAM_REPLICAS=3".into()],
+    )
+}
+
+/// Starts a replica on `dir` joined to `nats`'s stream, with `extra`
+/// settings (`KEY=VALUE`).
+fn replica_with(nats: &NatsCluster, dir: &std::path::Path, name: &str, extra: &[String]) -> Server {
+    let mut settings = vec![
         "HUMEM_CLUSTER__ENABLED=true".to_string(),
         format!("HUMEM_CLUSTER__NATS_URLS={}", nats.urls_setting()),
-        "HUMEM_CLUSTER__STREAM_REPLICAS=3".to_string(),
         format!("HUMEM_CLUSTER__REPLICA_NAME={name}"),
     ];
+    settings.extend_from_slice(extra);
     let settings: Vec<&str> = settings.iter().map(String::as_str).collect();
     Server::start_with(dir, &settings)
 }
@@ -510,15 +521,15 @@ async fn a_halted_replica_refuses_queries_unless_told_to_serve_stale_reads() {
     let nats = NatsCluster::start(1);
     let dirs: Vec<_> = (0..2).map(|_| tempfile::tempdir().unwrap()).collect();
     let start = |dir: &std::path::Path, name: &str, stale: bool| {
-        let settings = [
-            "HUMEM_CLUSTER__ENABLED=true".to_string(),
-            format!("HUMEM_CLUSTER__NATS_URLS={}", nats.urls_setting()),
-            "HUMEM_CLUSTER__STREAM_REPLICAS=1".to_string(),
-            format!("HUMEM_CLUSTER__REPLICA_NAME={name}"),
-            format!("HUMEM_CLUSTER__SERVE_STALE_READS={stale}"),
-        ];
-        let settings: Vec<&str> = settings.iter().map(String::as_str).collect();
-        Server::start_with(dir, &settings)
+        replica_with(
+            &nats,
+            dir,
+            name,
+            &[
+                "HUMEM_CLUSTER__STREAM_REPLICAS=1".into(),
+                format!("HUMEM_CLUSTER__SERVE_STALE_READS={stale}"),
+            ],
+        )
     };
     let strict = start(dirs[0].path(), "strict", false);
     let stale = start(dirs[1].path(), "stale", true);

@@ -10,8 +10,6 @@
 //! paper's rule (within 5 m and 30°, at least the gap earlier). The
 //! keyframes stay on the server under the robot and session named.
 
-use std::io::IsTerminal;
-
 use anyhow::{bail, Context};
 use humem_server::proto;
 
@@ -81,16 +79,7 @@ pub async fn run(args: IngestArgs) -> anyhow::Result<()> {
         .await
         .with_context(|| format!("connecting to {}", args.server))?;
 
-    let bar = if std::io::stderr().is_terminal() {
-        indicatif::ProgressBar::new(dataset.queries.len() as u64)
-    } else {
-        indicatif::ProgressBar::hidden()
-    };
-    bar.set_style(
-        indicatif::ProgressStyle::with_template("{msg} {bar:40} {pos}/{len} [{elapsed} < {eta}]")
-            .expect("a valid template"),
-    );
-    bar.set_message("ingest");
+    let bar = super::run::progress(dataset.queries.len(), "ingest");
     let mut tally = Tally::default();
     for (i, image) in dataset.queries.iter().enumerate() {
         let data = std::fs::read(image).with_context(|| format!("reading {}", image.display()))?;

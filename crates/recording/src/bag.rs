@@ -261,6 +261,37 @@ impl Survey {
             .join(", ")
     }
 
+    /// The topic for `role` (`image`, `pose`): the one `asked` for, which
+    /// must carry one of `types`, else the bag's only topic of those types;
+    /// or why there is none (`none` when the bag has no such topic).
+    fn choose(
+        &self,
+        asked: Option<&String>,
+        role: &str,
+        types: [&str; 2],
+        flag: &str,
+        none: &str,
+    ) -> Result<String, String> {
+        match asked {
+            Some(topic) => match self.topics.get(topic) {
+                Some((t, _)) if types.contains(&t.as_str()) => Ok(topic.clone()),
+                Some((t, _)) => Err(format!(
+                    "{role} topic {topic} carries {t}, not {} or {}",
+                    types[0], types[1]
+                )),
+                None => Err(format!("no topic {topic}")),
+            },
+            None => match self.of_types(&types).as_slice() {
+                [one] => Ok((*one).clone()),
+                [] => Err(none.to_string()),
+                many => Err(format!(
+                    "{} {role} topics; name one with {flag}",
+                    many.len()
+                )),
+            },
+        }
+    }
+
     fn of_types(&self, types: &[&str]) -> Vec<&String> {
         self.topics
             .iter()
@@ -360,27 +391,15 @@ pub fn extract(
         reason,
         topics: survey.listing(),
     };
-    let image_topic = match &options.image_topic {
-        Some(topic) => match survey.topics.get(topic) {
-            Some((t, _)) if t == IMAGE || t == COMPRESSED => topic.clone(),
-            Some((t, _)) => {
-                return Err(topic_error(format!(
-                    "image topic {topic} carries {t}, not {IMAGE} or {COMPRESSED}"
-                )))
-            }
-            None => return Err(topic_error(format!("no topic {topic}"))),
-        },
-        None => match survey.of_types(&[IMAGE, COMPRESSED]).as_slice() {
-            [one] => (*one).clone(),
-            [] => return Err(topic_error("no image topic".into())),
-            many => {
-                return Err(topic_error(format!(
-                    "{} image topics; name one with --image-topic",
-                    many.len()
-                )))
-            }
-        },
-    };
+    let image_topic = survey
+        .choose(
+            options.image_topic.as_ref(),
+            "image",
+            [IMAGE, COMPRESSED],
+            "--image-topic",
+            "no image topic",
+        )
+        .map_err(topic_error)?;
     let (pose_source, mut poses) = if let Some((parent, child)) = &options.tf_frames {
         if survey.tf_poses.is_empty() {
             return Err(topic_error(format!(
@@ -392,33 +411,16 @@ pub fn extract(
             std::mem::take(&mut survey.tf_poses),
         )
     } else {
-        let topic = match &options.pose_topic {
-            Some(topic) => match survey.topics.get(topic) {
-                Some((t, _)) if t == ODOMETRY || t == POSE_STAMPED => topic.clone(),
-                Some((t, _)) => {
-                    return Err(topic_error(format!(
-                        "pose topic {topic} carries {t}, not {ODOMETRY} or {POSE_STAMPED}"
-                    )))
-                }
-                None => return Err(topic_error(format!("no topic {topic}"))),
-            },
-            None => match survey.of_types(&[ODOMETRY, POSE_STAMPED]).as_slice() {
-                [one] => (*one).clone(),
-                [] => {
-                    return Err(topic_error(
-                        "no pose topic (nav_msgs/Odometry or geometry_msgs/PoseStamped); \
-                         for poses on /tf name the frames with --tf-frames"
-                            .into(),
-                    ))
-                }
-                many => {
-                    return Err(topic_error(format!(
-                        "{} pose topics; name one with --pose-topic",
-                        many.len()
-                    )))
-                }
-            },
-        };
+        let topic = survey
+            .choose(
+                options.pose_topic.as_ref(),
+                "pose",
+                [ODOMETRY, POSE_STAMPED],
+                "--pose-topic",
+                "no pose topic (nav_msgs/Odometry or geometry_msgs/PoseStamped); \
+                 for poses on /tf name the frames with --tf-frames",
+            )
+            .map_err(topic_error)?;
         let poses = survey.poses.remove(&topic).unwrap_or_default();
         (topic, poses)
     };

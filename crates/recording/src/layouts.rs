@@ -123,6 +123,58 @@ fn quaternion(w: f64, x: f64, y: f64, z: f64) -> UnitQuaternion<f64> {
     UnitQuaternion::from_quaternion(Quaternion::new(w, x, y, z))
 }
 
+/// A list of `time filename` lines: each file, under `dir`, with its
+/// time in seconds (`seconds` per unit of the file's times).
+fn timed_files(
+    list: &Path,
+    layout: &str,
+    seconds: f64,
+    dir: &Path,
+) -> Result<Vec<(f64, PathBuf)>, RecordingError> {
+    lines(list)?
+        .into_iter()
+        .map(|(line, fields)| {
+            let t = numbers(list, line, &fields, 1, layout)?[0] * seconds;
+            let Some(file) = fields.get(1) else {
+                return Err(RecordingError::Line {
+                    path: list.to_path_buf(),
+                    line,
+                    reason: "no file name after the timestamp".into(),
+                });
+            };
+            Ok((t, dir.join(file)))
+        })
+        .collect()
+}
+
+/// A list of `time x y z` and a quaternion lines (`w x y z` when
+/// `w_first`, else `x y z w`), times in `seconds` per unit.
+fn timed_poses(
+    file: &Path,
+    layout: &str,
+    seconds: f64,
+    w_first: bool,
+) -> Result<Vec<TimedPose>, RecordingError> {
+    lines(file)?
+        .into_iter()
+        .map(|(line, fields)| {
+            let v = numbers(file, line, &fields, 8, layout)?;
+            let r = if w_first {
+                quaternion(v[4], v[5], v[6], v[7])
+            } else {
+                quaternion(v[7], v[4], v[5], v[6])
+            };
+            Ok(TimedPose {
+                time: v[0] * seconds,
+                pose: Pose {
+                    t: Vector3::new(v[1], v[2], v[3]),
+                    r,
+                },
+            })
+        })
+        .collect()
+}
+
 /// TUM RGB-D: `rgb.txt` (`timestamp filename`) and `groundtruth.txt`
 /// (`timestamp tx ty tz qx qy qz qw`).
 fn tum(dir: &Path) -> Result<Listing, RecordingError> {
@@ -134,29 +186,8 @@ fn tum(dir: &Path) -> Result<Listing, RecordingError> {
             reason: "a TUM folder needs groundtruth.txt beside rgb.txt".into(),
         });
     }
-    let mut images = Vec::new();
-    for (line, fields) in lines(&rgb)? {
-        let t = numbers(&rgb, line, &fields, 1, "timestamp filename")?[0];
-        let Some(file) = fields.get(1) else {
-            return Err(RecordingError::Line {
-                path: rgb.clone(),
-                line,
-                reason: "no file name after the timestamp".into(),
-            });
-        };
-        images.push((t, dir.join(file)));
-    }
-    let mut poses = Vec::new();
-    for (line, fields) in lines(&truth)? {
-        let v = numbers(&truth, line, &fields, 8, "timestamp tx ty tz qx qy qz qw")?;
-        poses.push(TimedPose {
-            time: v[0],
-            pose: Pose {
-                t: Vector3::new(v[1], v[2], v[3]),
-                r: quaternion(v[7], v[4], v[5], v[6]),
-            },
-        });
-    }
+    let images = timed_files(&rgb, "timestamp filename", 1.0, dir)?;
+    let poses = timed_poses(&truth, "timestamp tx ty tz qx qy qz qw", 1.0, false)?;
     Ok(Listing {
         images,
         poses,
@@ -187,35 +218,18 @@ fn euroc(dir: &Path, options: &Options) -> Result<Listing, RecordingError> {
             });
         }
     }
-    let mut images = Vec::new();
-    for (line, fields) in lines(&cam_csv)? {
-        let t = numbers(&cam_csv, line, &fields, 1, "timestamp [ns], filename")?[0] * 1e-9;
-        let Some(file) = fields.get(1) else {
-            return Err(RecordingError::Line {
-                path: cam_csv.clone(),
-                line,
-                reason: "no file name after the timestamp".into(),
-            });
-        };
-        images.push((t, mav0.join(camera).join("data").join(file)));
-    }
-    let mut poses = Vec::new();
-    for (line, fields) in lines(&truth)? {
-        let v = numbers(
-            &truth,
-            line,
-            &fields,
-            8,
-            "timestamp [ns], x, y, z, qw, qx, qy, qz",
-        )?;
-        poses.push(TimedPose {
-            time: v[0] * 1e-9,
-            pose: Pose {
-                t: Vector3::new(v[1], v[2], v[3]),
-                r: quaternion(v[4], v[5], v[6], v[7]),
-            },
-        });
-    }
+    let images = timed_files(
+        &cam_csv,
+        "timestamp [ns], filename",
+        1e-9,
+        &mav0.join(camera).join("data"),
+    )?;
+    let poses = timed_poses(
+        &truth,
+        "timestamp [ns], x, y, z, qw, qx, qy, qz",
+        1e-9,
+        true,
+    )?;
     Ok(Listing {
         images,
         poses,
