@@ -36,7 +36,8 @@ fn limiter(per_second: u32) -> Option<DefaultKeyedRateLimiter<String>> {
     NonZeroU32::new(per_second).map(|rate| DefaultKeyedRateLimiter::keyed(Quota::per_second(rate)))
 }
 
-fn exhausted(kind: &'static str, message: String, retry: Duration) -> Status {
+/// RESOURCE_EXHAUSTED with a `retry-after-ms` hint, counted by `kind`.
+pub fn exhausted(kind: &'static str, message: String, retry: Duration) -> Status {
     metrics::QUOTA_REFUSED.with_label_values(&[kind]).inc();
     let mut status = Status::resource_exhausted(message);
     let ms = u32::try_from(retry.as_millis()).unwrap_or(u32::MAX).max(1);
@@ -102,7 +103,11 @@ impl Quotas {
     }
 
     /// Whether storing `keys` keeps each robot within its keyframe quota
-    /// (keys already stored replace themselves and add nothing).
+    /// (keys already stored replace themselves and add nothing), as far as
+    /// this replica's index knows: a cheap first look, so that a robot at
+    /// its quota is refused before its image is perceived. The exact check
+    /// is the store writer's, as the insert is applied
+    /// ([`humem_store::Mutation::InsertWithin`]).
     pub fn store_size(&self, store: &Store, keys: &[&KeyframeKey]) -> Result<(), Status> {
         if self.max_keyframes == 0 {
             return Ok(());

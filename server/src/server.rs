@@ -117,7 +117,8 @@ pub async fn serve_watching(
             std::time::Duration::from_millis(config.query.max_wait_ms),
         ),
         replica.clone(),
-    );
+    )
+    .with_keyframe_quota(config.quotas.max_keyframes_per_robot);
     let service = PlaceRecognitionService::new(
         pipeline,
         limits,

@@ -586,3 +586,91 @@ async fn a_halted_replica_refuses_queries_unless_told_to_serve_stale_reads() {
     let answered = ask(&stale, "r", newest, 0).await.unwrap();
     assert!(!answered.candidates.is_empty());
 }
+
+#[tokio::test(flavor = "multi_thread")]
+async fn a_keyframe_quota_holds_when_three_replicas_take_writes_at_once() {
+    if !nats::available() {
+        return;
+    }
+    const QUOTA: u64 = 20;
+    const WRITES: usize = 45;
+    let nats = NatsCluster::start(3);
+    let dirs: Vec<_> = (0..3).map(|_| tempfile::tempdir().unwrap()).collect();
+    let settings = [
+        "HUMEM_CLUSTER__STREAM_REPLICAS=3".to_string(),
+        format!("HUMEM_QUOTAS__MAX_KEYFRAMES_PER_ROBOT={QUOTA}"),
+    ];
+    let replicas: Vec<Server> = dirs
+        .iter()
+        .zip(["a", "b", "c"])
+        .map(|(dir, name)| replica_with(&nats, dir.path(), name, &settings))
+        .collect();
+    let mut world = World::new(WRITES, 13);
+    let drive = scenes::loop_drive(&mut world, "r", "s", 0, WRITES, 0);
+
+    // Every new keyframe of one robot at once, a third through each
+    // replica: each replica's own index is empty when it takes its writes,
+    // so only a check in the log's order can hold the quota.
+    let mut writes = tokio::task::JoinSet::new();
+    for (k, (kf, _)) in drive.iter().enumerate() {
+        let mut client = replicas[k % 3].client().await;
+        let request = proto::InsertRequest {
+            keyframe: Some(kf.clone()),
+        };
+        let id = scenes::id(kf);
+        writes.spawn(async move { (id, client.insert(request).await) });
+    }
+    let (mut stored, mut refused, mut last) = (BTreeSet::new(), BTreeSet::new(), 0);
+    while let Some(result) = writes.join_next().await {
+        let (id, result) = result.unwrap();
+        match result {
+            Ok(reply) => {
+                stored.insert(id);
+                last = last.max(reply.into_inner().log_sequence);
+            }
+            Err(status) if status.code() == Code::ResourceExhausted => {
+                assert!(
+                    status.message().contains(&format!("its quota is {QUOTA}")),
+                    "{status:?}"
+                );
+                refused.insert(id);
+            }
+            Err(status) => panic!("an insert failed otherwise: {status:?}"),
+        }
+    }
+    assert_eq!(
+        (stored.len() as u64, refused.len() as u64),
+        (QUOTA, WRITES as u64 - QUOTA)
+    );
+    // Every replica holds exactly the quota, the same keyframes.
+    let mut held = Vec::new();
+    for server in &replicas {
+        wait_for_position(server, last, Duration::from_secs(20)).await;
+        let stats = server.stats().await;
+        assert_eq!(stats.keyframes, QUOTA, "{stats:?}");
+        held.push(stats.maps);
+    }
+    assert!(held.windows(2).all(|w| w[0] == w[1]), "{held:?}");
+    // A replacement adds nothing and passes; one more new keyframe does not.
+    let keyframe = |id: u64| {
+        let kf = drive.iter().find(|(kf, _)| scenes::id(kf) == id).unwrap();
+        proto::InsertRequest {
+            keyframe: Some(kf.0.clone()),
+        }
+    };
+    let first_stored = *stored.first().unwrap();
+    let first_refused = *refused.first().unwrap();
+    replicas[1]
+        .client()
+        .await
+        .insert(keyframe(first_stored))
+        .await
+        .unwrap();
+    let status = replicas[2]
+        .client()
+        .await
+        .insert(keyframe(first_refused))
+        .await
+        .unwrap_err();
+    assert_eq!(status.code(), Code::ResourceExhausted, "{status:?}");
+}

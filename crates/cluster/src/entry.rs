@@ -14,17 +14,19 @@ use humem_store::Mutation;
 pub const FORMAT_HEADER: &str = "Humem-Log-Format";
 
 /// The newest format this build reads. Format 2 added verdicts
-/// (`Mutation::ReportVerdict`); every other change is still written as
-/// format 1 ([`format_of`]), so a replica of an older build keeps applying
-/// them during a rolling upgrade and waits at the first verdict instead of
-/// skipping it.
-pub const FORMAT: u32 = 2;
+/// (`Mutation::ReportVerdict`), format 3 inserts checked against a
+/// keyframe quota (`Mutation::InsertWithin`); every other change is still
+/// written as format 1 ([`format_of`]), so a replica of an older build
+/// keeps applying them during a rolling upgrade and waits at the first
+/// entry it cannot read instead of skipping it.
+pub const FORMAT: u32 = 3;
 
 /// The format an entry carrying `mutation` is written in: the oldest that
 /// holds it.
 pub fn format_of(mutation: &Mutation) -> u32 {
     match mutation {
         Mutation::ReportVerdict(_) => 2,
+        Mutation::InsertWithin { .. } => 3,
         _ => 1,
     }
 }
@@ -86,12 +88,18 @@ mod tests {
         assert_eq!(format_of(&mutation), 1);
         assert_eq!(decode(Some("2"), &payload).unwrap(), mutation);
         assert_eq!(
-            decode(Some("3"), &payload).unwrap_err(),
+            decode(Some("4"), &payload).unwrap_err(),
             EntryError::Newer {
-                found: 3,
-                supported: 2
+                found: 4,
+                supported: 3
             }
         );
+        let within = Mutation::InsertWithin {
+            keyframes: Vec::new(),
+            max_per_robot: 7,
+        };
+        assert_eq!(format_of(&within), 3);
+        assert_eq!(decode(Some("3"), &encode(&within)).unwrap(), within);
         let verdict = Mutation::ReportVerdict(humem_core::verdict::Verdict {
             query: humem_core::keyframe::KeyframeKey {
                 robot_id: "r".into(),

@@ -59,6 +59,10 @@ pub(crate) struct Checkpoints {
     pub writing: Mutex<()>,
     /// Free space kept on the store's disk (the writer checks it too).
     pub disk: crate::disk::DiskGuard,
+    /// Flushes the writer fails on purpose before it flushes again; only
+    /// tests set it (through [`crate::Store::fail_next_flushes`]), to prove
+    /// that a failed flush leaves the tree and the index equal.
+    pub flush_faults: std::sync::atomic::AtomicU32,
 }
 
 impl Checkpoints {

@@ -26,6 +26,8 @@ pub use checkpoint::SnapshotReport;
 pub mod codec;
 pub mod journal;
 mod placement;
+mod robot_counts;
+mod rollback;
 pub use placement::FileRule;
 pub mod snapshot;
 mod writer;
@@ -115,6 +117,19 @@ pub enum StoreError {
         /// The key named.
         key: KeyframeKey,
     },
+    /// An insert would take a robot past its keyframe quota; nothing of it
+    /// was stored.
+    #[error("robot {robot:?} holds {held} keyframes and its quota is {max}: storing {adding} more would pass it; erase or reset some first")]
+    QuotaExceeded {
+        /// The robot.
+        robot: String,
+        /// Keyframes it holds.
+        held: u64,
+        /// New keyframes the insert would add.
+        adding: u64,
+        /// Keyframes it may hold.
+        max: u64,
+    },
     /// Writing the index snapshot failed (the store itself is unharmed).
     #[error("index snapshot: {0}")]
     Snapshot(#[from] snapshot::SnapshotError),
@@ -122,13 +137,15 @@ pub enum StoreError {
 
 impl StoreError {
     /// Whether the change itself is refused (a descriptor of the wrong
-    /// length), so that every store refuses it alike; otherwise the failure
+    /// length, a verdict on an unknown keyframe, a quota it would pass), so that every store refuses it alike; otherwise the failure
     /// is this store's (disk, sled, queue) and the same change may succeed
     /// later.
     pub fn is_refusal(&self) -> bool {
         matches!(
             self,
-            StoreError::DimensionMismatch { .. } | StoreError::UnknownKeyframe { .. }
+            StoreError::DimensionMismatch { .. }
+                | StoreError::UnknownKeyframe { .. }
+                | StoreError::QuotaExceeded { .. }
         )
     }
 }
@@ -159,8 +176,23 @@ pub enum Mutation {
     },
     /// Record SLAM's verdict on a proposed candidate (both keyframes must
     /// be stored; the newest verdict on a pair and kind replaces older).
-    /// Last, so that log entries of the other kinds keep their encoding.
+    /// Last but one, so that log entries of the other kinds keep their
+    /// encoding.
     ReportVerdict(Verdict),
+    /// Store keyframes as [`Mutation::Insert`] does, unless a robot would
+    /// then hold more than `max_per_robot` keyframes (a replaced keyframe
+    /// adds nothing): then the whole change is refused with
+    /// [`StoreError::QuotaExceeded`]. The writer checks it against sled as
+    /// it applies changes one by one, so concurrent inserts (and, in
+    /// cluster mode, inserts through different replicas, applied in the
+    /// log's order everywhere) can never pass the quota together. Last, so
+    /// that log entries of the other kinds keep their encoding.
+    InsertWithin {
+        /// The keyframes, stored atomically.
+        keyframes: Vec<SemanticKeyframe>,
+        /// Keyframes a robot may hold.
+        max_per_robot: u64,
+    },
 }
 
 /// A corrected pose for one keyframe of a session.
@@ -458,6 +490,7 @@ impl Store {
             running: AtomicBool::new(false),
             writing: parking_lot::Mutex::new(()),
             disk: disk::DiskGuard::new(dir, min_free_bytes),
+            flush_faults: std::sync::atomic::AtomicU32::new(0),
         });
         // Without a current snapshot the next open would walk the tree (or
         // a long journal) again: write one now, in the background.
@@ -554,6 +587,15 @@ impl Store {
     pub fn flush(&self) -> Result<(), StoreError> {
         self.db.flush()?;
         Ok(())
+    }
+
+    /// Makes the writer's next `count` group flushes fail as if sled could
+    /// not write (tests of what a failed flush leaves behind).
+    #[cfg(test)]
+    pub(crate) fn fail_next_flushes(&self, count: u32) {
+        self.checkpoints
+            .flush_faults
+            .store(count, std::sync::atomic::Ordering::Release);
     }
 }
 
@@ -722,7 +764,11 @@ fn check_format(meta: &sled::Tree) -> Result<(), StoreError> {
 }
 
 #[cfg(test)]
+mod flush_failure_tests;
+#[cfg(test)]
 mod log_tests;
+#[cfg(test)]
+mod quota_tests;
 #[cfg(test)]
 mod restart_tests;
 #[cfg(test)]

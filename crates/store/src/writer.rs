@@ -24,6 +24,8 @@ use super::checkpoint::Checkpoints;
 use super::codec::{self, decode_record, encode_key, encode_record};
 use super::journal;
 use super::placement::DescriptorPlacement;
+use super::robot_counts::{self, Deltas, RobotCounts};
+use super::rollback::{Counters, Rollback, TreeName};
 use super::{
     Index, LogApplied, LogEntry, MapKey, Mutation, MutationOutcome, PoseUpdate, StoreError,
     META_DIM, META_LOG_POSITION,
@@ -59,7 +61,10 @@ impl Job {
 
 /// Whether a change adds data (refused near a full disk; removals are not).
 fn adds_data(mutation: &Mutation) -> bool {
-    matches!(mutation, Mutation::Insert(_) | Mutation::UpdatePoses { .. })
+    matches!(
+        mutation,
+        Mutation::Insert(_) | Mutation::InsertWithin { .. } | Mutation::UpdatePoses { .. }
+    )
 }
 
 /// A job's answer, sent after its group's flush.
@@ -128,9 +133,9 @@ pub(super) fn spawn(
 ) -> WriterHandle {
     let capacity = capacity.max(1);
     let (queue, receiver) = mpsc::channel(capacity);
-    let (dim, keyframes) = {
+    let (dim, keyframes, robots) = {
         let index = checkpoints.index.read();
-        (index.dim(), index.len() as u64)
+        (index.dim(), index.len() as u64, RobotCounts::of(&index))
     };
     let (publisher, groups) = std::sync::mpsc::sync_channel(PUBLISH_BACKLOG);
     let stage = Publisher {
@@ -147,6 +152,13 @@ pub(super) fn spawn(
         keyframes,
         checkpoints,
         observer: observer.clone(),
+        rollback: Rollback::begin(Counters {
+            dim,
+            sequence: 0,
+            keyframes,
+        }),
+        robots,
+        group_robots: Deltas::new(),
     };
     std::thread::Builder::new()
         .name("humem-store-publisher".into())
@@ -171,6 +183,8 @@ struct Staged {
     keys: Vec<Vec<u8>>,
     /// Keyframes the change adds to the store (negative: removes).
     added: i64,
+    /// The same, per robot.
+    added_by_robot: Deltas,
     outcome: MutationOutcome,
     changes: Vec<IndexChange>,
     /// Writes to the verdicts tree, and their count.
@@ -178,6 +192,9 @@ struct Staged {
     /// Writes to the by-candidate tree of the verdicts.
     verdicts_by_candidate: sled::Batch,
     verdict_writes: usize,
+    /// The keys the two verdict batches write or remove, for the rollback.
+    verdict_keys: Vec<Vec<u8>>,
+    by_candidate_keys: Vec<Vec<u8>>,
     /// Keys of the keyframes the change removes, whose verdicts go too.
     removed: Vec<Vec<u8>>,
 }
@@ -189,8 +206,33 @@ impl Staged {
         self.removed.push(bytes.clone());
         self.keys.push(bytes);
         self.added -= 1;
+        *self.added_by_robot.entry(key.robot_id.clone()).or_default() -= 1;
         self.outcome.affected += 1;
         self.changes.push(IndexChange::Remove(key));
+    }
+
+    /// Stages a write to the verdicts tree.
+    fn put_verdict(&mut self, key: Vec<u8>, value: Vec<u8>) {
+        self.verdicts.insert(key.clone(), value);
+        self.verdict_keys.push(key);
+    }
+
+    /// Stages a removal from the verdicts tree.
+    fn remove_verdict(&mut self, key: Vec<u8>) {
+        self.verdicts.remove(key.clone());
+        self.verdict_keys.push(key);
+    }
+
+    /// Stages a write to the by-candidate tree.
+    fn put_by_candidate(&mut self, key: Vec<u8>, value: Vec<u8>) {
+        self.verdicts_by_candidate.insert(key.clone(), value);
+        self.by_candidate_keys.push(key);
+    }
+
+    /// Stages a removal from the by-candidate tree.
+    fn remove_by_candidate(&mut self, key: Vec<u8>) {
+        self.verdicts_by_candidate.remove(key.clone());
+        self.by_candidate_keys.push(key);
     }
 }
 
@@ -216,6 +258,13 @@ struct Writer {
     keyframes: u64,
     checkpoints: Arc<Checkpoints>,
     observer: SharedObserver,
+    /// What the group being staged replaced, put back if its flush fails.
+    rollback: Rollback,
+    /// Keyframes per robot in sled after the last staged change.
+    robots: RobotCounts,
+    /// The changes to `robots` of the group being staged, taken back if
+    /// its flush fails.
+    group_robots: Deltas,
 }
 
 /// A group that is durable in sled, waiting to be published to the index.
@@ -328,6 +377,8 @@ impl Writer {
         // Near a full disk, what adds data is refused before sled sees it
         // (sled does not survive ENOSPC); removals go on, they make room.
         let short = self.checkpoints.disk.room_for(0).err();
+        self.rollback = Rollback::begin(self.counters());
+        self.group_robots.clear();
         let mut changes = Vec::new();
         let mut answers = Vec::with_capacity(group.len());
         let mut journaled = 0;
@@ -346,8 +397,9 @@ impl Writer {
                 }
             }
         }
-        if let Err(e) = self.trees.db.flush() {
-            tracing::error!(error = %e, "flushing the store failed");
+        if let Err(e) = self.flush() {
+            tracing::error!(error = %e, "flushing the store failed; its group is rolled back");
+            self.roll_back();
             for answer in answers {
                 let error = StoreError::Flush(e.to_string());
                 match answer {
@@ -373,6 +425,71 @@ impl Writer {
         if self.publisher.send(group).is_err() {
             tracing::error!("the index publisher is gone");
         }
+    }
+
+    /// The writer's counters, as a rollback restores them.
+    fn counters(&self) -> Counters {
+        Counters {
+            dim: self.dim,
+            sequence: self.sequence,
+            keyframes: self.keyframes,
+        }
+    }
+
+    /// Flushes sled, or fails as a test asked (see
+    /// [`Checkpoints::flush_faults`]).
+    fn flush(&self) -> Result<(), StoreError> {
+        let faults = &self.checkpoints.flush_faults;
+        if faults
+            .fetch_update(Ordering::AcqRel, Ordering::Acquire, |n| n.checked_sub(1))
+            .is_ok()
+        {
+            return Err(StoreError::Flush("injected flush failure".into()));
+        }
+        self.trees.db.flush()?;
+        Ok(())
+    }
+
+    /// Puts back everything the group wrote to sled, after its flush
+    /// failed: the trees and counters return to where the index is, and
+    /// the next flush persists that instead of the failed group.
+    fn roll_back(&mut self) {
+        let now = self.counters();
+        let rollback = std::mem::replace(&mut self.rollback, Rollback::begin(now));
+        let before = rollback.before;
+        let trees = &self.trees;
+        let undone = rollback.undo(|name| match name {
+            TreeName::Keyframes => &trees.keyframes,
+            TreeName::Journal => &trees.journal,
+            TreeName::Meta => &trees.meta,
+            TreeName::Verdicts => &trees.verdicts,
+            TreeName::VerdictsByCandidate => &trees.verdicts_by_candidate,
+        });
+        match undone {
+            Ok(keys) => tracing::warn!(keys, "rolled back a group whose flush failed"),
+            // sled's in-memory trees refused a write: nothing in this
+            // process can be trusted to match the index any more.
+            Err(e) => {
+                tracing::error!(error = %e, "rolling back a failed group failed; restart the service to reload the index from disk")
+            }
+        }
+        self.dim = before.dim;
+        self.sequence = before.sequence;
+        self.keyframes = before.keyframes;
+        self.robots.add(&std::mem::take(&mut self.group_robots), -1);
+    }
+
+    /// Records the value `key` of `name` holds before the group writes it.
+    fn remember(&mut self, name: TreeName, key: &[u8]) -> Result<(), StoreError> {
+        let tree = match name {
+            TreeName::Keyframes => &self.trees.keyframes,
+            TreeName::Journal => &self.trees.journal,
+            TreeName::Meta => &self.trees.meta,
+            TreeName::Verdicts => &self.trees.verdicts,
+            TreeName::VerdictsByCandidate => &self.trees.verdicts_by_candidate,
+        };
+        self.rollback.remember(name, tree, key)?;
+        Ok(())
     }
     /// Stages log entries in order, each recording its position. An entry
     /// refused for what it is (a [`StoreError::is_refusal`]) is refused on
@@ -411,7 +528,8 @@ impl Writer {
     }
 
     /// Records the log position of a change that wrote nothing else.
-    fn record_position(&self, position: u64) -> Result<(), StoreError> {
+    fn record_position(&mut self, position: u64) -> Result<(), StoreError> {
+        self.remember(TreeName::Meta, META_LOG_POSITION)?;
         self.trees
             .meta
             .insert(META_LOG_POSITION, &position.to_be_bytes())?;
@@ -432,7 +550,11 @@ impl Writer {
     ) -> Result<MutationOutcome, StoreError> {
         let mut staged = Staged::default();
         match mutation {
-            Mutation::Insert(keyframes) => self.stage_insert(keyframes, &mut staged)?,
+            Mutation::Insert(keyframes) => self.stage_insert(keyframes, None, &mut staged)?,
+            Mutation::InsertWithin {
+                keyframes,
+                max_per_robot,
+            } => self.stage_insert(keyframes, Some(max_per_robot), &mut staged)?,
             Mutation::Erase {
                 session,
                 keyframe_ids,
@@ -456,12 +578,28 @@ impl Writer {
         let journaled_change = !staged.keys.is_empty();
         let sequence = self.sequence + u64::from(journaled_change);
         let keyframes = self.keyframes.saturating_add_signed(staged.added);
-        let entry = postcard::to_allocvec(&journal::Entry {
+        let journal_entry = journal::Entry {
             keyframes,
             keys: std::mem::take(&mut staged.keys),
-        })
-        .map_err(|e| StoreError::Journal(e.to_string()))?;
+        };
+        let entry = postcard::to_allocvec(&journal_entry)
+            .map_err(|e| StoreError::Journal(e.to_string()))?;
         let key = journal::key(sequence);
+        for written in &journal_entry.keys {
+            self.remember(TreeName::Keyframes, written)?;
+        }
+        if journaled_change {
+            self.remember(TreeName::Journal, &key)?;
+        }
+        for written in &staged.verdict_keys {
+            self.remember(TreeName::Verdicts, written)?;
+        }
+        for written in &staged.by_candidate_keys {
+            self.remember(TreeName::VerdictsByCandidate, written)?;
+        }
+        if position.is_some() {
+            self.remember(TreeName::Meta, META_LOG_POSITION)?;
+        }
         (
             &self.trees.keyframes,
             &self.trees.journal,
@@ -487,6 +625,8 @@ impl Writer {
             })?;
         self.sequence = sequence;
         self.keyframes = keyframes;
+        self.robots.add(&staged.added_by_robot, 1);
+        robot_counts::merge(&mut self.group_robots, &staged.added_by_robot);
         *journaled += staged.changes.len() as u64;
         changes.extend(staged.changes);
         Ok(staged.outcome)
@@ -508,12 +648,8 @@ impl Writer {
         } else {
             staged.outcome.affected += 1;
         }
-        staged
-            .verdicts
-            .insert(key.clone(), codec::encode_verdict(&verdict));
-        staged
-            .verdicts_by_candidate
-            .insert(codec::verdict_candidate_key(&verdict), key);
+        staged.put_verdict(key.clone(), codec::encode_verdict(&verdict));
+        staged.put_by_candidate(codec::verdict_candidate_key(&verdict), key);
         staged.verdict_writes += 1;
         staged.changes.push(IndexChange::Verdict(verdict));
         Ok(())
@@ -527,14 +663,14 @@ impl Writer {
             for item in self.trees.verdicts.scan_prefix(&removed).keys() {
                 let key = item?;
                 let twin = codec::verdict_twin_key(&key, removed.len());
-                staged.verdicts.remove(key);
-                staged.verdicts_by_candidate.remove(twin);
+                staged.remove_verdict(key.to_vec());
+                staged.remove_by_candidate(twin);
                 staged.verdict_writes += 1;
             }
             for item in self.trees.verdicts_by_candidate.scan_prefix(&removed) {
                 let (key, primary) = item?;
-                staged.verdicts_by_candidate.remove(key);
-                staged.verdicts.remove(primary);
+                staged.remove_by_candidate(key.to_vec());
+                staged.remove_verdict(primary.to_vec());
                 staged.verdict_writes += 1;
             }
         }
@@ -542,10 +678,12 @@ impl Writer {
     }
 
     /// Inserts or replaces keyframes; the first keyframe of an empty store
-    /// sets its descriptor length.
+    /// sets its descriptor length. With `max_per_robot`, refuses the whole
+    /// change if a robot would then hold more keyframes than that.
     fn stage_insert(
         &mut self,
         keyframes: Vec<SemanticKeyframe>,
+        max_per_robot: Option<u64>,
         staged: &mut Staged,
     ) -> Result<(), StoreError> {
         let dim = if self.dim == 0 {
@@ -562,12 +700,6 @@ impl Writer {
                 });
             }
         }
-        if self.dim == 0 && dim != 0 {
-            self.trees
-                .meta
-                .insert(META_DIM, &(dim as u32).to_be_bytes())?;
-            self.dim = dim;
-        }
         let mut seen = HashSet::new();
         for kf in keyframes {
             let key = encode_key(&kf.key);
@@ -575,10 +707,43 @@ impl Writer {
                 staged.outcome.replaced += 1;
             } else {
                 staged.added += 1;
+                *staged
+                    .added_by_robot
+                    .entry(kf.key.robot_id.clone())
+                    .or_default() += 1;
             }
             staged.batch.insert(key.clone(), encode_record(&kf));
             staged.keys.push(key);
             staged.changes.push(IndexChange::Upsert(kf));
+        }
+        if let Some(max) = max_per_robot {
+            self.check_quota(&staged.added_by_robot, max)?;
+        }
+        if self.dim == 0 && dim != 0 {
+            self.remember(TreeName::Meta, META_DIM)?;
+            self.trees
+                .meta
+                .insert(META_DIM, &(dim as u32).to_be_bytes())?;
+            self.dim = dim;
+        }
+        Ok(())
+    }
+
+    /// Refuses an insert that would take a robot past `max` keyframes
+    /// (the robot named first in order is reported).
+    fn check_quota(&self, adding: &Deltas, max: u64) -> Result<(), StoreError> {
+        let mut robots: Vec<_> = adding.iter().filter(|(_, &n)| n > 0).collect();
+        robots.sort();
+        for (robot, &n) in robots {
+            let held = self.robots.held(robot);
+            if held + n as u64 > max {
+                return Err(StoreError::QuotaExceeded {
+                    robot: robot.clone(),
+                    held,
+                    adding: n as u64,
+                    max,
+                });
+            }
         }
         Ok(())
     }

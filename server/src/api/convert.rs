@@ -217,6 +217,11 @@ fn store_status(e: StoreError) -> Status {
             );
             status
         }
+        StoreError::QuotaExceeded { .. } => crate::quota::exhausted(
+            "store_size",
+            e.to_string(),
+            std::time::Duration::from_secs(60),
+        ),
         StoreError::WriterGone => Status::unavailable(e.to_string()),
         StoreError::UnknownKeyframe { role, .. } => {
             let field = if role == "query" {

@@ -121,6 +121,10 @@ pub struct Pipeline {
     admission: Arc<QueryAdmission>,
     /// Cluster mode: writes go through the replicated log.
     replica: Option<Replica>,
+    /// Keyframes a robot may hold (0: no limit), checked by the store's
+    /// writer as each insert is applied, so that no interleaving of
+    /// inserts passes it (in cluster mode: in the log's order).
+    max_keyframes_per_robot: u64,
 }
 
 impl Pipeline {
@@ -140,12 +144,31 @@ impl Pipeline {
             scheduler,
             admission,
             replica,
+            max_keyframes_per_robot: 0,
         }
     }
 
     /// Makes a change durable: through the write log in cluster mode (the
     /// answer waits until this replica has applied it), else straight to
     /// the store.
+    /// The same pipeline, holding each robot to `max` keyframes (0: no
+    /// limit).
+    pub fn with_keyframe_quota(mut self, max: u64) -> Self {
+        self.max_keyframes_per_robot = max;
+        self
+    }
+
+    /// The change that stores `keyframes`, under the keyframe quota.
+    fn insertion(&self, keyframes: Vec<SemanticKeyframe>) -> Mutation {
+        match self.max_keyframes_per_robot {
+            0 => Mutation::Insert(keyframes),
+            max_per_robot => Mutation::InsertWithin {
+                keyframes,
+                max_per_robot,
+            },
+        }
+    }
+
     async fn write(&self, mutation: Mutation) -> Result<Stored, PipelineError> {
         match &self.replica {
             Some(replica) => {
@@ -197,7 +220,7 @@ impl Pipeline {
         let (keyframes, mut resolved) = self.resolve_all(vec![pending]).await?;
         self.check_dims(|_| "keyframe".into(), &keyframes)?;
         let (features, timings) = resolved.pop().unwrap_or_default();
-        let stored = self.write(Mutation::Insert(keyframes)).await?;
+        let stored = self.write(self.insertion(keyframes)).await?;
         metrics::KEYFRAMES_INSERTED.inc();
         metrics::observe_stages(&timings);
         Ok(Inserted {
@@ -218,7 +241,7 @@ impl Pipeline {
         }
         self.check_dims(|i| format!("keyframes[{i}]"), &keyframes)?;
         let count = keyframes.len() as u64;
-        let stored = self.write(Mutation::Insert(keyframes)).await?;
+        let stored = self.write(self.insertion(keyframes)).await?;
         metrics::KEYFRAMES_INSERTED.inc_by(count);
         Ok(stored)
     }
