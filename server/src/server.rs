@@ -54,6 +54,18 @@ pub async fn serve_watching(
         descriptors_to_file: config.store.descriptors_to_file(config.vpr.scan),
         cache_bytes: config.store.cache_bytes,
     };
+    // Cluster mode: a store the write log no longer reaches (new, or away
+    // longer than the log keeps entries) starts from the newest snapshot.
+    if config.cluster.enabled {
+        check_nats_exposure(&config)?;
+        humem_cluster::snapshots::restore_if_behind(
+            &config.cluster,
+            &config.store.data_dir,
+            std::sync::Arc::new(metrics::cluster::PrometheusCluster),
+        )
+        .await
+        .context("restoring the store from the cluster's newest snapshot")?;
+    }
     let data_dir = config.store.data_dir.clone();
     let opening = tokio::task::spawn_blocking(move || {
         Store::open_with(&data_dir, store_options, metrics::queue_observer())

@@ -674,3 +674,87 @@ async fn a_keyframe_quota_holds_when_three_replicas_take_writes_at_once() {
         .unwrap_err();
     assert_eq!(status.code(), Code::ResourceExhausted, "{status:?}");
 }
+
+/// Inserts one keyframe through `server`; returns its log position.
+async fn insert_one(server: &Server, kf: &proto::Keyframe) -> u64 {
+    server
+        .client()
+        .await
+        .insert(proto::InsertRequest {
+            keyframe: Some(kf.clone()),
+        })
+        .await
+        .unwrap()
+        .into_inner()
+        .log_sequence
+}
+
+/// The log position of the newest store snapshot in `nats`'s bucket.
+async fn snapshot_position(js: &async_nats::jetstream::Context) -> Option<u64> {
+    let bucket = js.get_object_store("HUMEM_WRITES_SNAPSHOTS").await.ok()?;
+    let info = bucket.info("store").await.ok()?;
+    info.metadata.get("log_position")?.parse().ok()
+}
+
+#[tokio::test(flavor = "multi_thread")]
+async fn a_new_replica_starts_from_the_snapshot_once_the_log_has_moved_past_it() {
+    if !nats::available() {
+        return;
+    }
+    let nats = NatsCluster::start(1);
+    let dirs: Vec<_> = (0..2).map(|_| tempfile::tempdir().unwrap()).collect();
+    let settings = |every: u64| {
+        [
+            "HUMEM_CLUSTER__STREAM_REPLICAS=1".to_string(),
+            format!("HUMEM_CLUSTER__SNAPSHOT_EVERY={every}"),
+        ]
+    };
+    let first = replica_with(&nats, dirs[0].path(), "first", &settings(10));
+    let mut world = World::new(30, 17);
+    let drive = scenes::loop_drive(&mut world, "r", "s", 0, 30, 10);
+    let mut last = 0;
+    for (kf, _) in &drive[..25] {
+        last = insert_one(&first, kf).await;
+    }
+    let client = async_nats::connect(format!("nats://127.0.0.1:{}", nats.client_port(0)))
+        .await
+        .unwrap();
+    let js = async_nats::jetstream::new(client);
+    let started = Instant::now();
+    let snapshot = loop {
+        match snapshot_position(&js).await {
+            Some(position) if position >= 20 => break position,
+            _ => {
+                assert!(
+                    started.elapsed() < Duration::from_secs(20),
+                    "no snapshot at 20 entries or more"
+                );
+                tokio::time::sleep(Duration::from_millis(100)).await;
+            }
+        }
+    };
+    // The log's head moves past every position a new replica could start
+    // from, as retention does (here at once): entries up to the snapshot's
+    // go, and more writes follow.
+    let mut stream = js.get_stream("HUMEM_WRITES").await.unwrap();
+    stream.purge().sequence(snapshot).await.unwrap();
+    assert_eq!(stream.info().await.unwrap().state.first_sequence, snapshot);
+    for (kf, _) in &drive[25..] {
+        last = insert_one(&first, kf).await;
+    }
+
+    // A replica on an empty directory starts from the snapshot and replays
+    // the rest, and answers as the first does.
+    let second = replica_with(&nats, dirs[1].path(), "second", &settings(0));
+    wait_for_position(&second, last, Duration::from_secs(20)).await;
+    let (a, b) = (first.stats().await, second.stats().await);
+    assert_eq!((b.keyframes, b.log_position), (drive.len() as u64, last));
+    assert_eq!(a.maps, b.maps);
+    let newest = scenes::id(&drive.last().unwrap().0);
+    let (a, b) = (
+        ask(&first, "r", newest, last).await.unwrap(),
+        ask(&second, "r", newest, last).await.unwrap(),
+    );
+    assert!(!a.candidates.is_empty());
+    assert_eq!(answer(&a), answer(&b));
+}

@@ -139,7 +139,7 @@ impl NatsCluster {
             };
             let _ = write!(
                 conn,
-                "GET /jsz?streams=true HTTP/1.1\r\nHost: localhost\r\nConnection: close\r\n\r\n"
+                "GET /jsz?streams=true HTTP/1.0\r\nHost: localhost\r\n\r\n"
             );
             let mut response = String::new();
             if conn.read_to_string(&mut response).is_err() {

@@ -31,10 +31,16 @@ pub struct ClusterConfig {
     /// Copies of the stream JetStream keeps, on different NATS servers (3
     /// survives one server lost; 1 for a single NATS server).
     pub stream_replicas: usize,
-    /// Hours an entry is kept in the stream (0: for ever). A replica away
-    /// longer than this cannot catch up from the stream (docs/fleet-and-cluster.md,
+    /// Hours an entry is kept in the stream (0: for ever; default a day).
+    /// A replica away longer than this starts from the newest store
+    /// snapshot instead (`snapshot_every`; docs/fleet-and-cluster.md,
     /// "Retention").
     pub max_age_hours: u64,
+    /// Log entries a replica applies between store snapshots it publishes
+    /// to the bucket `<stream>_SNAPSHOTS` (any replica's snapshot counts);
+    /// a replica whose next entry has aged out of the stream starts from
+    /// the newest one. 0: this replica publishes none.
+    pub snapshot_every: u64,
     /// Seconds within which a write published again (a retry after a lost
     /// acknowledgement) is recognised by its id and stored once.
     pub duplicate_window_s: u64,
@@ -68,7 +74,8 @@ impl Default for ClusterConfig {
             stream: "HUMEM_WRITES".into(),
             subject: "humem.writes".into(),
             stream_replicas: 3,
-            max_age_hours: 0,
+            max_age_hours: 24,
+            snapshot_every: 100_000,
             duplicate_window_s: 120,
             publish_timeout_ms: 10_000,
             apply_timeout_ms: 10_000,

@@ -27,6 +27,7 @@ pub mod entry;
 mod nats;
 pub mod observe;
 mod replica;
+pub mod snapshots;
 
 pub use config::ClusterConfig;
 pub use observe::{ClusterObserver, Unobserved};

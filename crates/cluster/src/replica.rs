@@ -87,7 +87,7 @@ impl Replica {
         }
         if position + 1 < state.first_sequence {
             return Err(ClusterError::Diverged(format!(
-                "this store has applied the write log up to entry {position}, but stream {} now starts at entry {} (older entries aged out, cluster.max_age_hours): seed this replica from a healthy one (docs/fleet-and-cluster.md, \"Retention\")",
+                "this store has applied the write log up to entry {position}, but stream {} now starts at entry {} (older entries aged out, cluster.max_age_hours) and no store snapshot reaches it (cluster.snapshot_every; is any replica publishing?): seed this replica from a healthy one (docs/fleet-and-cluster.md, \"Retention\")",
                 config.stream, state.first_sequence
             )));
         }
@@ -129,12 +129,24 @@ impl Replica {
             observer.clone(),
             stop_rx.clone(),
         ));
-        let health = tokio::spawn(watch_stream(
+        let mut tasks = vec![applier];
+        if config.snapshot_every > 0 {
+            let bucket = crate::snapshots::open_bucket(&js, &config).await?;
+            tasks.push(tokio::spawn(crate::snapshots::publish_loop(
+                bucket,
+                store.clone(),
+                store.dir().to_path_buf(),
+                config.snapshot_every,
+                shared.clone(),
+                stop_rx.clone(),
+            )));
+        }
+        tasks.push(tokio::spawn(watch_stream(
             stream,
             shared.clone(),
             observer.clone(),
             stop_rx,
-        ));
+        )));
         let replica = Replica {
             inner: Arc::new(Inner {
                 js,
@@ -145,7 +157,7 @@ impl Replica {
                 shared,
                 observer,
                 stop,
-                tasks: Mutex::new(vec![applier, health]),
+                tasks: Mutex::new(tasks),
             }),
         };
         if import {

@@ -22,6 +22,7 @@
 
 mod checkpoint;
 pub mod disk;
+pub mod export;
 pub use checkpoint::SnapshotReport;
 pub mod codec;
 pub mod journal;
@@ -130,6 +131,9 @@ pub enum StoreError {
         /// Keyframes it may hold.
         max: u64,
     },
+    /// A store export could not be written or read.
+    #[error("store export: {0}")]
+    Export(String),
     /// Writing the index snapshot failed (the store itself is unharmed).
     #[error("index snapshot: {0}")]
     Snapshot(#[from] snapshot::SnapshotError),
@@ -381,6 +385,34 @@ pub fn recorded_dim(dir: &Path) -> Result<Option<usize>, StoreError> {
     Ok(dim.filter(|&d| d > 0))
 }
 
+/// The last write-log entry the store in `dir` has applied (0: none, or no
+/// store), without creating or changing a store; like [`recorded_dim`],
+/// it fails while a server runs on `dir`.
+pub fn recorded_log_position(dir: &Path) -> Result<u64, StoreError> {
+    if !dir.join("conf").is_file() && !dir.join("db").is_file() {
+        return Ok(0);
+    }
+    let db = sled::Config::new()
+        .path(dir)
+        .open()
+        .map_err(|source| StoreError::Open {
+            path: dir.display().to_string(),
+            source,
+        })?;
+    if !db
+        .tree_names()
+        .iter()
+        .any(|name| name == META_TREE.as_bytes())
+    {
+        return Ok(0);
+    }
+    let position = db
+        .open_tree(META_TREE)?
+        .get(META_LOG_POSITION)?
+        .map(|v| u64::from_be_bytes(v.as_ref().try_into().unwrap_or([0; 8])));
+    Ok(position.unwrap_or(0))
+}
+
 impl Store {
     /// Opens (or creates) the store in `dir` and loads its index.
     /// `dim` pins the descriptor length (0: taken from the first keyframe).
@@ -526,6 +558,11 @@ impl Store {
         })
     }
 
+    /// The store's directory.
+    pub fn dir(&self) -> &Path {
+        &self.checkpoints.dir
+    }
+
     /// How this store was opened.
     pub fn opened(&self) -> &OpenReport {
         &self.opened
@@ -581,6 +618,13 @@ impl Store {
     pub fn get(&self, key: &KeyframeKey) -> Option<SemanticKeyframe> {
         let index = self.index.read();
         index.row_of(key).map(|row| index.keyframe(row))
+    }
+
+    /// Writes the whole store to `file` ([`export`]), taken by the writer
+    /// between two groups of changes so that it holds exactly the changes
+    /// up to the log position it records. Writes wait meanwhile.
+    pub async fn export(&self, file: &Path) -> Result<export::ExportHeader, StoreError> {
+        self.writer.export(file.to_path_buf()).await
     }
 
     /// Flushes everything to disk (at shutdown; acknowledged writes already are).
@@ -763,6 +807,8 @@ fn check_format(meta: &sled::Tree) -> Result<(), StoreError> {
     }
 }
 
+#[cfg(test)]
+mod export_tests;
 #[cfg(test)]
 mod flush_failure_tests;
 #[cfg(test)]

@@ -22,6 +22,7 @@ use tokio::sync::{mpsc, oneshot};
 
 use super::checkpoint::Checkpoints;
 use super::codec::{self, decode_record, encode_key, encode_record};
+use super::export::{self, ExportHeader};
 use super::journal;
 use super::placement::DescriptorPlacement;
 use super::robot_counts::{self, Deltas, RobotCounts};
@@ -47,7 +48,11 @@ enum Job {
     /// Entries of a replicated log, applied in order, each recording its
     /// position; stops at the first that cannot be applied now.
     Log(Vec<LogEntry>, LogReply),
+    /// Write the whole store to a file, after the group it arrived in.
+    Export(std::path::PathBuf, ExportReply),
 }
+
+type ExportReply = oneshot::Sender<Result<ExportHeader, StoreError>>;
 
 impl Job {
     /// Changes this job holds, for the queue depth.
@@ -55,6 +60,7 @@ impl Job {
         match self {
             Job::Change(..) => 1,
             Job::Log(entries, _) => entries.len(),
+            Job::Export(..) => 0,
         }
     }
 }
@@ -98,6 +104,12 @@ impl WriterHandle {
     pub async fn submit(&self, mutation: Mutation) -> Result<MutationOutcome, StoreError> {
         let (reply, answer) = oneshot::channel();
         self.send(Job::Change(mutation, reply))?;
+        answer.await.map_err(|_| StoreError::WriterGone)?
+    }
+
+    pub async fn export(&self, file: std::path::PathBuf) -> Result<ExportHeader, StoreError> {
+        let (reply, answer) = oneshot::channel();
+        self.send(Job::Export(file, reply))?;
         answer.await.map_err(|_| StoreError::WriterGone)?
     }
 
@@ -382,6 +394,7 @@ impl Writer {
         let mut changes = Vec::new();
         let mut answers = Vec::with_capacity(group.len());
         let mut journaled = 0;
+        let mut exports = Vec::new();
         for job in group {
             match job {
                 Job::Change(mutation, reply) => {
@@ -395,8 +408,46 @@ impl Writer {
                     let applied = self.stage_log(entries, short, &mut changes, &mut journaled);
                     answers.push(Answer::Log(reply, applied));
                 }
+                Job::Export(file, reply) => exports.push((file, reply)),
             }
         }
+        self.flush_group(changes, answers, journaled);
+        // After the flush (or the rollback of a failed one) the trees hold
+        // exactly the changes acknowledged so far.
+        for (file, reply) in exports {
+            let _ = reply.send(self.export(&file));
+        }
+    }
+
+    /// Writes the store to `file` as it is in sled now.
+    fn export(&self, file: &std::path::Path) -> Result<ExportHeader, StoreError> {
+        let position = self.trees.meta.get(META_LOG_POSITION)?.map_or(0, |v| {
+            u64::from_be_bytes(v.as_ref().try_into().unwrap_or([0; 8]))
+        });
+        let header = ExportHeader {
+            format: export::EXPORT_FORMAT,
+            store_format: super::STORE_FORMAT,
+            dim: self.dim as u32,
+            log_position: position,
+            keyframes: self.keyframes,
+            verdicts: self.trees.verdicts.len() as u64,
+        };
+        let out = std::fs::File::create(file)
+            .map_err(|e| StoreError::Export(format!("{}: {e}", file.display())))?;
+        let trees = [
+            (export::TREES[0].0, &self.trees.keyframes),
+            (export::TREES[1].0, &self.trees.verdicts),
+            (export::TREES[2].0, &self.trees.verdicts_by_candidate),
+        ];
+        export::write(header, &trees, &out)?;
+        out.sync_all()
+            .map_err(|e| StoreError::Export(format!("{}: {e}", file.display())))?;
+        Ok(header)
+    }
+
+    /// Flushes a staged group and hands it to the publisher, or rolls it
+    /// back and fails its callers.
+    fn flush_group(&mut self, changes: Vec<IndexChange>, answers: Vec<Answer>, journaled: u64) {
         if let Err(e) = self.flush() {
             tracing::error!(error = %e, "flushing the store failed; its group is rolled back");
             self.roll_back();
