@@ -757,4 +757,27 @@ async fn a_new_replica_starts_from_the_snapshot_once_the_log_has_moved_past_it()
     );
     assert!(!a.candidates.is_empty());
     assert_eq!(answer(&a), answer(&b));
+
+    // A store written outside cluster mode is never replaced by the
+    // snapshot: the replica refuses to start, and the store keeps its own.
+    let own = tempfile::tempdir().unwrap();
+    {
+        let alone = Server::start(own.path());
+        scenes::insert_all(
+            &mut alone.client().await,
+            drive[..3].iter().map(|(kf, _)| kf.clone()),
+        )
+        .await;
+        assert_eq!(alone.stats().await.keyframes, 3);
+    }
+    let settings = vec![
+        "HUMEM_CLUSTER__ENABLED=true".to_string(),
+        format!("HUMEM_CLUSTER__NATS_URLS={}", nats.urls_setting()),
+        "HUMEM_CLUSTER__STREAM_REPLICAS=1".to_string(),
+    ];
+    let (ok, stderr) = serve_until_exit(own.path(), &settings);
+    assert!(!ok);
+    assert!(stderr.contains("written outside cluster mode"), "{stderr}");
+    let alone = Server::start(own.path());
+    assert_eq!(alone.stats().await.keyframes, 3);
 }

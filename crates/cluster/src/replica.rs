@@ -85,12 +85,6 @@ impl Replica {
                 config.stream, state.last_sequence
             )));
         }
-        if position + 1 < state.first_sequence {
-            return Err(ClusterError::Diverged(format!(
-                "this store has applied the write log up to entry {position}, but stream {} now starts at entry {} (older entries aged out, cluster.max_age_hours) and no store snapshot reaches it (cluster.snapshot_every; is any replica publishing?): seed this replica from a healthy one (docs/fleet-and-cluster.md, \"Retention\")",
-                config.stream, state.first_sequence
-            )));
-        }
         // A store written before cluster mode holds keyframes no log entry
         // carries. Into an empty stream it is published whole (below), so
         // the other replicas get it; next to another replica's entries it
@@ -101,6 +95,12 @@ impl Replica {
             return Err(ClusterError::Diverged(format!(
                 "this store holds {existing} keyframes written outside cluster mode, and stream {} already holds {} entries: start this replica on an empty data directory (it catches up from the stream), or put the keyframes into the cluster through the API",
                 config.stream, state.last_sequence
+            )));
+        }
+        if position + 1 < state.first_sequence {
+            return Err(ClusterError::Diverged(format!(
+                "this store has applied the write log up to entry {position}, but stream {} now starts at entry {} (older entries aged out, cluster.max_age_hours) and no store snapshot reaches it (cluster.snapshot_every; is any replica publishing?): seed this replica from a healthy one (docs/fleet-and-cluster.md, \"Retention\")",
+                config.stream, state.first_sequence
             )));
         }
         let (applied, _) = watch::channel(position);

@@ -192,7 +192,13 @@ pub async fn restore_if_behind(
     observer: Arc<dyn crate::observe::ClusterObserver>,
 ) -> Result<Option<ExportHeader>, ClusterError> {
     config.validate().map_err(ClusterError::Config)?;
-    let position = humem_store::recorded_log_position(dir)?;
+    let recorded = humem_store::recorded_log(dir)?;
+    let position = recorded.position;
+    if position == 0 && recorded.holds_keyframes {
+        // Written outside cluster mode: never replaced by a snapshot (the
+        // replica's start says what to do with it).
+        return Ok(None);
+    }
     let client = crate::nats::connect(config, observer).await?;
     let mut js = jetstream::new(client);
     js.set_timeout(crate::nats::ATTEMPT_TIMEOUT);

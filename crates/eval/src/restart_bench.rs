@@ -54,6 +54,11 @@ struct Row {
     written: Duration,
     synced: Duration,
     bytes: u64,
+    /// The cluster snapshot's export (writes wait meanwhile), its size,
+    /// and a new replica's restore from it followed by the open.
+    export: Duration,
+    export_bytes: u64,
+    restore: Duration,
 }
 
 /// The server's defaults where they matter here: the descriptors leave
@@ -159,7 +164,32 @@ pub async fn restart(args: RestartBench) -> anyhow::Result<()> {
             store.index().len() == keyframes,
             "the tree and the snapshot disagree"
         );
+
+        // What a cluster snapshot costs: the export on the writer thread,
+        // and a new replica's restore from it (then its open, from the tree).
+        eprintln!("bench restart: exporting the store, as a cluster snapshot does");
+        let file = parent.path().join("export.bin");
+        let started = std::time::Instant::now();
+        let header = store.export(&file).await?;
+        let export = started.elapsed();
+        ensure!(
+            header.keyframes as usize == keyframes,
+            "the export misses keyframes"
+        );
+        let export_bytes = std::fs::metadata(&file)?.len();
         drop(store);
+        settle();
+        eprintln!("bench restart: restoring a new store from the export");
+        let restored_dir = parent.path().join("restored");
+        let (restore, restored) = timed(|| {
+            humem_store::export::restore(&restored_dir, &file)?;
+            reopen(&restored_dir)
+        });
+        ensure!(
+            restored?.index().len() == keyframes,
+            "the restored store differs"
+        );
+        settle();
         table.push(Row {
             rows,
             insert_rate,
@@ -169,6 +199,9 @@ pub async fn restart(args: RestartBench) -> anyhow::Result<()> {
             written: report.written,
             synced: report.elapsed,
             bytes: report.bytes,
+            export,
+            export_bytes,
+            restore,
         });
     }
     println!(
@@ -176,12 +209,12 @@ pub async fn restart(args: RestartBench) -> anyhow::Result<()> {
         args.dim
     );
     println!(
-        "| keyframes | from the tree | from the snapshot + journal | keys replayed | snapshot written / synced | snapshot size | inserts while building |"
+        "| keyframes | from the tree | from the snapshot + journal | keys replayed | snapshot written / synced | snapshot size | inserts while building | cluster export (writes wait) / size | restore from it + open |"
     );
-    println!("| --- | --- | --- | --- | --- | --- | --- |");
+    println!("| --- | --- | --- | --- | --- | --- | --- | --- | --- |");
     for r in &table {
         println!(
-            "| {} | {:.2} s | {:.2} s ({:.2}x) | {} | {:.2} s / {:.2} s | {:.2} GB | {:.0}/s |",
+            "| {} | {:.2} s | {:.2} s ({:.2}x) | {} | {:.2} s / {:.2} s | {:.2} GB | {:.0}/s | {:.2} s / {:.2} GB | {:.2} s |",
             r.rows,
             r.tree.as_secs_f64(),
             r.snapshot.as_secs_f64(),
@@ -191,6 +224,9 @@ pub async fn restart(args: RestartBench) -> anyhow::Result<()> {
             r.synced.as_secs_f64(),
             r.bytes as f64 / 1e9,
             r.insert_rate,
+            r.export.as_secs_f64(),
+            r.export_bytes as f64 / 1e9,
+            r.restore.as_secs_f64(),
         );
     }
     Ok(())

@@ -69,7 +69,13 @@ async fn an_export_restores_the_same_store_elsewhere() {
         }
     };
     assert_eq!(restored_header, header);
-    assert_eq!(recorded_log_position(target.path()).unwrap(), 4);
+    assert_eq!(
+        recorded_log(target.path()).unwrap(),
+        RecordedLog {
+            position: 4,
+            holds_keyframes: true
+        }
+    );
     let restored = open_when_free(target.path(), 0).unwrap();
     assert_eq!(held(&restored), held(&store));
     assert_eq!(restored.log_position().unwrap(), 4);

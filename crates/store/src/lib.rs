@@ -385,12 +385,21 @@ pub fn recorded_dim(dir: &Path) -> Result<Option<usize>, StoreError> {
     Ok(dim.filter(|&d| d > 0))
 }
 
-/// The last write-log entry the store in `dir` has applied (0: none, or no
-/// store), without creating or changing a store; like [`recorded_dim`],
-/// it fails while a server runs on `dir`.
-pub fn recorded_log_position(dir: &Path) -> Result<u64, StoreError> {
+/// Where the store in `dir` stands in a replicated write log, read
+/// without creating or changing a store.
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq)]
+pub struct RecordedLog {
+    /// The last entry applied (0: none, or no store).
+    pub position: u64,
+    /// Whether the store holds any keyframe.
+    pub holds_keyframes: bool,
+}
+
+/// [`RecordedLog`] of the store in `dir`; like [`recorded_dim`], it fails
+/// while a server runs on `dir`.
+pub fn recorded_log(dir: &Path) -> Result<RecordedLog, StoreError> {
     if !dir.join("conf").is_file() && !dir.join("db").is_file() {
-        return Ok(0);
+        return Ok(RecordedLog::default());
     }
     let db = sled::Config::new()
         .path(dir)
@@ -399,18 +408,21 @@ pub fn recorded_log_position(dir: &Path) -> Result<u64, StoreError> {
             path: dir.display().to_string(),
             source,
         })?;
-    if !db
-        .tree_names()
-        .iter()
-        .any(|name| name == META_TREE.as_bytes())
-    {
-        return Ok(0);
-    }
-    let position = db
-        .open_tree(META_TREE)?
-        .get(META_LOG_POSITION)?
-        .map(|v| u64::from_be_bytes(v.as_ref().try_into().unwrap_or([0; 8])));
-    Ok(position.unwrap_or(0))
+    let has = |tree: &str| db.tree_names().iter().any(|name| name == tree.as_bytes());
+    let position = if has(META_TREE) {
+        db.open_tree(META_TREE)?
+            .get(META_LOG_POSITION)?
+            .map_or(0, |v| {
+                u64::from_be_bytes(v.as_ref().try_into().unwrap_or([0; 8]))
+            })
+    } else {
+        0
+    };
+    let holds_keyframes = has(KEYFRAMES_TREE) && !db.open_tree(KEYFRAMES_TREE)?.is_empty();
+    Ok(RecordedLog {
+        position,
+        holds_keyframes,
+    })
 }
 
 impl Store {
