@@ -95,3 +95,22 @@ async fn an_export_restores_the_same_store_elsewhere() {
         "{refused}"
     );
 }
+
+#[tokio::test]
+async fn an_export_that_would_eat_the_disk_reserve_is_refused() {
+    let dir = tempfile::tempdir().unwrap();
+    let store = Store::open_with(
+        dir.path(),
+        StoreOptions {
+            // More than any disk has free: nothing may be written.
+            min_free_bytes: u64::MAX / 4,
+            ..StoreOptions::default()
+        },
+        humem_core::observe::unobserved(),
+    )
+    .unwrap();
+    let file = dir.path().join("export.bin");
+    let refused = store.export(&file).await.unwrap_err();
+    assert!(matches!(refused, StoreError::DiskFull { .. }), "{refused}");
+    assert!(!file.exists());
+}

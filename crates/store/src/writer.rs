@@ -419,8 +419,12 @@ impl Writer {
         }
     }
 
-    /// Writes the store to `file` as it is in sled now.
+    /// Writes the store to `file` as it is in sled now, if the disk has
+    /// room for about sled's size above the reserve (sled does not survive
+    /// a full disk, so an export must never be what fills it).
     fn export(&self, file: &std::path::Path) -> Result<ExportHeader, StoreError> {
+        let estimate = self.trees.db.size_on_disk()?;
+        self.checkpoints.disk.room_for(estimate)?;
         let position = self.trees.meta.get(META_LOG_POSITION)?.map_or(0, |v| {
             u64::from_be_bytes(v.as_ref().try_into().unwrap_or([0; 8]))
         });
