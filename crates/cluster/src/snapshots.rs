@@ -35,6 +35,9 @@ const UPLOAD_FILE: &str = "snapshot-upload.tmp";
 const DOWNLOAD_FILE: &str = "restoring.download";
 /// How often the publisher looks whether a snapshot is due.
 const CHECK_EVERY: Duration = Duration::from_millis(500);
+/// The wait after a failed snapshot before the next try: an export holds
+/// the writer, so a failing upload must not repeat it every check.
+const RETRY_AFTER_FAILURE: Duration = Duration::from_secs(60);
 
 /// The bucket name of `config`'s stream.
 pub fn bucket(config: &ClusterConfig) -> String {
@@ -115,6 +118,7 @@ pub(crate) async fn publish_loop(
     mut stop: watch::Receiver<bool>,
 ) {
     let mut newest_known: Option<u64> = None;
+    let mut not_before = tokio::time::Instant::now();
     loop {
         tokio::select! {
             _ = tokio::time::sleep(CHECK_EVERY) => {}
@@ -124,7 +128,7 @@ pub(crate) async fn publish_loop(
             return;
         }
         let applied = *shared.applied.borrow();
-        if applied < newest_known.unwrap_or(0) + every {
+        if applied < newest_known.unwrap_or(0) + every || tokio::time::Instant::now() < not_before {
             continue;
         }
         // Another replica may have published one meanwhile.
@@ -132,6 +136,7 @@ pub(crate) async fn publish_loop(
             Ok(found) => newest_known = found,
             Err(e) => {
                 tracing::warn!(error = %e, "cannot read the newest store snapshot; trying later");
+                not_before = tokio::time::Instant::now() + RETRY_AFTER_FAILURE;
                 continue;
             }
         }
@@ -148,7 +153,8 @@ pub(crate) async fn publish_loop(
                 newest_known = Some(header.log_position);
             }
             Err(e) => {
-                tracing::warn!(error = %e, "publishing a store snapshot failed; trying later")
+                tracing::warn!(error = %e, retry_s = RETRY_AFTER_FAILURE.as_secs(), "publishing a store snapshot failed; trying later");
+                not_before = tokio::time::Instant::now() + RETRY_AFTER_FAILURE;
             }
         }
     }
