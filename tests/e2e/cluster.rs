@@ -537,16 +537,7 @@ async fn a_halted_replica_refuses_queries_unless_told_to_serve_stale_reads() {
     let drive = scenes::loop_drive(&mut world, "r", "s", 0, 10, 5);
     let mut last = 0;
     for (kf, _) in &drive {
-        last = strict
-            .client()
-            .await
-            .insert(proto::InsertRequest {
-                keyframe: Some(kf.clone()),
-            })
-            .await
-            .unwrap()
-            .into_inner()
-            .log_sequence;
+        last = insert_one(&strict, kf).await;
     }
     let newest = scenes::id(&drive.last().unwrap().0);
     for server in [&strict, &stale] {

@@ -4,21 +4,8 @@
 //! succeeds and after a reopen (issue 32, item 1).
 
 use super::tests::{kf, open_when_free, session};
+use super::verdict_tests::verdict;
 use super::*;
-use humem_core::verdict::{Verdict, VerificationKind};
-
-fn verdict(query: u64, candidate: u64, accepted: bool) -> Verdict {
-    Verdict {
-        query: session("r", "s").keyframe(query),
-        candidate: session("r", "s").keyframe(candidate),
-        kind: VerificationKind::Loop,
-        accepted,
-        relative: None,
-        score: Some(0.5),
-        inliers: 40,
-        reported_at: 1.0e9,
-    }
-}
 
 /// One keyframe as the store holds it: key, map and x of the pose.
 type Row = (String, u64, u64, i64);

@@ -360,22 +360,10 @@ pub const STORE_FORMAT: u32 = 3;
 /// is not fixed yet. Opens sled (which admits one process, so it fails
 /// while a server runs on `dir`) and reads the meta tree only.
 pub fn recorded_dim(dir: &Path) -> Result<Option<usize>, StoreError> {
-    // sled keeps its configuration and log in these two files.
-    if !dir.join("conf").is_file() && !dir.join("db").is_file() {
+    let Some(db) = open_existing(dir)? else {
         return Ok(None);
-    }
-    let db = sled::Config::new()
-        .path(dir)
-        .open()
-        .map_err(|source| StoreError::Open {
-            path: dir.display().to_string(),
-            source,
-        })?;
-    if !db
-        .tree_names()
-        .iter()
-        .any(|name| name == META_TREE.as_bytes())
-    {
+    };
+    if !has_tree(&db, META_TREE) {
         return Ok(None);
     }
     let dim = db
@@ -383,6 +371,28 @@ pub fn recorded_dim(dir: &Path) -> Result<Option<usize>, StoreError> {
         .get(META_DIM)?
         .map(|v| u32::from_be_bytes(v.as_ref().try_into().unwrap_or([0; 4])) as usize);
     Ok(dim.filter(|&d| d > 0))
+}
+
+/// Opens the sled database in `dir` if one is there (its configuration or
+/// log file exists), without creating one.
+fn open_existing(dir: &Path) -> Result<Option<sled::Db>, StoreError> {
+    // sled keeps its configuration and log in these two files.
+    if !dir.join("conf").is_file() && !dir.join("db").is_file() {
+        return Ok(None);
+    }
+    sled::Config::new()
+        .path(dir)
+        .open()
+        .map(Some)
+        .map_err(|source| StoreError::Open {
+            path: dir.display().to_string(),
+            source,
+        })
+}
+
+/// Whether `db` has a tree named `tree` (without creating it).
+fn has_tree(db: &sled::Db, tree: &str) -> bool {
+    db.tree_names().iter().any(|name| name == tree.as_bytes())
 }
 
 /// Where the store in `dir` stands in a replicated write log, read
@@ -398,17 +408,10 @@ pub struct RecordedLog {
 /// [`RecordedLog`] of the store in `dir`; like [`recorded_dim`], it fails
 /// while a server runs on `dir`.
 pub fn recorded_log(dir: &Path) -> Result<RecordedLog, StoreError> {
-    if !dir.join("conf").is_file() && !dir.join("db").is_file() {
+    let Some(db) = open_existing(dir)? else {
         return Ok(RecordedLog::default());
-    }
-    let db = sled::Config::new()
-        .path(dir)
-        .open()
-        .map_err(|source| StoreError::Open {
-            path: dir.display().to_string(),
-            source,
-        })?;
-    let has = |tree: &str| db.tree_names().iter().any(|name| name == tree.as_bytes());
+    };
+    let has = |tree: &str| has_tree(&db, tree);
     let position = if has(META_TREE) {
         db.open_tree(META_TREE)?
             .get(META_LOG_POSITION)?

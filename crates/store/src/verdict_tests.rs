@@ -5,7 +5,8 @@
 use super::tests::{kf, open_when_free, session};
 use super::*;
 
-fn verdict(query: u64, candidate: u64, accepted: bool) -> Verdict {
+/// A loop verdict on keyframes `query` and `candidate` of robot r, session s.
+pub(crate) fn verdict(query: u64, candidate: u64, accepted: bool) -> Verdict {
     Verdict {
         query: session("r", "s").keyframe(query),
         candidate: session("r", "s").keyframe(candidate),

@@ -89,6 +89,19 @@ pub(super) struct Trees {
     pub verdicts_by_candidate: sled::Tree,
 }
 
+impl Trees {
+    /// The tree a rollback record names.
+    fn named(&self, name: TreeName) -> &sled::Tree {
+        match name {
+            TreeName::Keyframes => &self.keyframes,
+            TreeName::Journal => &self.journal,
+            TreeName::Meta => &self.meta,
+            TreeName::Verdicts => &self.verdicts,
+            TreeName::VerdictsByCandidate => &self.verdicts_by_candidate,
+        }
+    }
+}
+
 /// Sending side of the writer's queue.
 #[derive(Clone)]
 pub(super) struct WriterHandle {
@@ -513,13 +526,7 @@ impl Writer {
         let rollback = std::mem::replace(&mut self.rollback, Rollback::begin(now));
         let before = rollback.before;
         let trees = &self.trees;
-        let undone = rollback.undo(|name| match name {
-            TreeName::Keyframes => &trees.keyframes,
-            TreeName::Journal => &trees.journal,
-            TreeName::Meta => &trees.meta,
-            TreeName::Verdicts => &trees.verdicts,
-            TreeName::VerdictsByCandidate => &trees.verdicts_by_candidate,
-        });
+        let undone = rollback.undo(|name| trees.named(name));
         match undone {
             Ok(keys) => tracing::warn!(keys, "rolled back a group whose flush failed"),
             // sled's in-memory trees refused a write: nothing in this
@@ -536,14 +543,7 @@ impl Writer {
 
     /// Records the value `key` of `name` holds before the group writes it.
     fn remember(&mut self, name: TreeName, key: &[u8]) -> Result<(), StoreError> {
-        let tree = match name {
-            TreeName::Keyframes => &self.trees.keyframes,
-            TreeName::Journal => &self.trees.journal,
-            TreeName::Meta => &self.trees.meta,
-            TreeName::Verdicts => &self.trees.verdicts,
-            TreeName::VerdictsByCandidate => &self.trees.verdicts_by_candidate,
-        };
-        self.rollback.remember(name, tree, key)?;
+        self.rollback.remember(name, self.trees.named(name), key)?;
         Ok(())
     }
     /// Stages log entries in order, each recording its position. An entry
