@@ -25,6 +25,9 @@ use crate::vpr::feedback::{squared_distance, Place, VerdictParams};
 use crate::vpr::operating_point::{OperatingPoint, Sample};
 use crate::vpr::{self, DescriptorMatrix, KeyframeMemory};
 
+mod grouping;
+pub use grouping::GROUP_TAIL_ROWS;
+
 /// A map: (robot, session, map id).
 #[derive(
     Debug, Clone, PartialEq, Eq, Hash, PartialOrd, Ord, serde::Serialize, serde::Deserialize,
@@ -167,6 +170,11 @@ pub struct Index {
     /// Each map's keyframe spacing once computed ([`Index::map_spacing`]);
     /// a map's entry is dropped when its track or a pose in it changes.
     spacings: Mutex<HashMap<MapKey, f64>>,
+    /// Rows `0..grouped` were grouped by map; the rows after them were
+    /// appended since (see [`grouping`]).
+    grouped: usize,
+    /// Groupings so far ([`Index::layout_epoch`]).
+    layout_epoch: u64,
 }
 
 /// An operating point and what it was estimated with.
@@ -201,6 +209,8 @@ impl Index {
             verdicts: VerdictBook::new(),
             operating_point: Mutex::new(None),
             spacings: Mutex::new(HashMap::new()),
+            grouped: 0,
+            layout_epoch: 0,
         }
     }
 
@@ -622,6 +632,10 @@ impl Index {
         self.ids.swap_remove(row);
         self.preds.swap_remove(row);
         self.tags.swap_remove(row);
+        // The tail's last row fills the hole (or, without a tail, the
+        // grouped rows' last one): the grouped rows end where they did, or
+        // at the new end.
+        self.grouped = self.grouped.min(last);
         if row != last {
             let moved = &self.rows[row];
             self.by_key.insert(moved.key.clone(), row);
@@ -795,9 +809,17 @@ mod tests {
     use crate::keyframe::{Features, TextObservation};
 
     fn kf(session: &str, id: u64, map: u64, text: &str) -> SemanticKeyframe {
+        let mut keyframe = kf_of("r", session, id, map);
+        keyframe.features.objects[0].texts[0].text = text.into();
+        keyframe
+    }
+
+    /// Keyframe `id` of a robot's session in map `map`; its descriptor is
+    /// `[id, 1]`.
+    pub(super) fn kf_of(robot: &str, session: &str, id: u64, map: u64) -> SemanticKeyframe {
         SemanticKeyframe {
             key: KeyframeKey {
-                robot_id: "r".into(),
+                robot_id: robot.into(),
                 session_id: session.into(),
                 keyframe_id: id,
             },
@@ -815,7 +837,7 @@ mod tests {
                     centroid: [0.5, 0.5],
                     area: 0.1,
                     texts: vec![TextObservation {
-                        text: text.into(),
+                        text: format!("t{id}"),
                         confidence: 1.0,
                     }],
                 }],
@@ -836,12 +858,19 @@ mod tests {
     }
 
     /// Checks every invariant against a from-scratch recomputation.
-    fn check(index: &Index) {
+    pub(super) fn check(index: &Index) {
         assert_eq!(index.matrix.len(), index.rows.len());
         assert_eq!(index.by_key.len(), index.rows.len());
         assert_eq!(index.ids.len(), index.rows.len());
+        assert_eq!(index.tags.len(), index.rows.len());
+        assert_eq!(index.appearance.len(), index.rows.len());
         for (row, meta) in index.rows.iter().enumerate() {
             assert_eq!(index.by_key[&meta.key], row);
+            assert_eq!(index.tracks[&meta.map_key()][&meta.key.keyframe_id], row);
+            assert_eq!(
+                index.tags[row],
+                crate::vpr::calibration::sample_tag(&meta.key)
+            );
             assert_eq!(index.matrix.row(row)[0], meta.key.keyframe_id as f32);
             let ids = index.ids[row];
             assert_eq!(

@@ -251,17 +251,25 @@ fn per_keyframe_cell(bytes: Option<f64>, dim: usize) -> String {
 
 /// The scoped case's store: `robots` robots of `keyframes` keyframes each,
 /// inserted in turn as a fleet's arrive; each robot's first half of
-/// keyframes is its map 0, the second half its map 1.
-fn fleet_store(robots: usize, keyframes: usize, dim: usize) -> Index {
+/// keyframes is its map 0, the second half its map 1. The newest rows are
+/// grouped by map as the store's writer groups them
+/// ([`Index::group_tail_if_due`] after every change), so the rows of the
+/// last, ungrouped tail stay scattered as they would be in a server.
+fn fleet_store(robots: usize, keyframes: usize, dim: usize) -> (Index, Vec<Duration>) {
     let rows = robots * keyframes;
     let mut index = Index::new(dim);
+    let mut groupings = Vec::new();
     let mut fleet = SyntheticFleet::new(rows, dim, robots);
     for i in 0..rows {
         let mut keyframe = fleet.keyframe(i);
         keyframe.map_id = u64::from(keyframe.key.keyframe_id >= (keyframes / 2) as u64);
         index.upsert(keyframe);
+        let (took, grouped) = timed(|| index.group_tail_if_due());
+        if grouped > 0 {
+            groupings.push(took);
+        }
     }
-    index
+    (index, groupings)
 }
 
 /// The scoped case's queries: what a robot may see, narrowest first.
@@ -291,7 +299,18 @@ fn scoped(config: &Config, args: &ScanBench) -> anyhow::Result<Vec<ScopedRow>> {
         "bench scan: building the scoped store, {robots} robots x {keyframes} keyframes x {}",
         args.dim
     );
-    let index = fleet_store(robots, keyframes, args.dim);
+    let (index, groupings) = fleet_store(robots, keyframes, args.dim);
+    let max = groupings
+        .iter()
+        .max()
+        .map_or(0.0, |d| d.as_secs_f64() * 1e3);
+    eprintln!(
+        "bench scan: the newest rows grouped by map {} times (every {} inserts): median {:.1} ms, max {max:.1} ms under the write lock; {} rows not yet grouped at the end",
+        groupings.len(),
+        humem_core::index::GROUP_TAIL_ROWS,
+        median_ms(&groupings),
+        index.ungrouped_rows()
+    );
     let k = config.vpr.top_k;
     let mut rng = Rng::new(7);
     let half = (keyframes / 2) as u64;

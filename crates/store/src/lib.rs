@@ -509,6 +509,10 @@ impl Store {
         let verdicts = db.open_tree(VERDICTS_TREE)?;
         let verdicts_by_candidate = db.open_tree(VERDICTS_BY_CANDIDATE_TREE)?;
         let mut index = index;
+        // A snapshot keeps the rows in the order they were grouped in, and
+        // the tree is in key order (robot, session, keyframe): the writer
+        // groups only what is appended from now on.
+        index.mark_grouped();
         load_verdicts(&verdicts, &mut index)?;
         let opened = OpenReport {
             source,

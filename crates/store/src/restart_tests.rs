@@ -370,3 +370,81 @@ async fn a_snapshot_taken_while_the_store_changes_loads_as_the_tree() {
     drop(store);
     assert_eq!(loaded, rebuilt_from_tree(dir.path()));
 }
+
+/// Robot `r`'s keyframe `id`: map 0 for its first half, map 1 after.
+fn fleet_keyframe(robot: usize, id: u64) -> SemanticKeyframe {
+    kf(&format!("robot-{robot}"), "s", id, u64::from(id >= 700))
+}
+
+#[tokio::test]
+async fn the_writer_groups_a_fleets_newest_rows_by_map_and_a_reopen_finds_the_same_store() {
+    use humem_core::index::GROUP_TAIL_ROWS;
+    let dir = tempfile::tempdir().unwrap();
+    let robots = 3;
+    let per_robot = (GROUP_TAIL_ROWS / robots + 100) as u64;
+    {
+        let store = open_manual(dir.path());
+        // Keyframes arrive interleaved, robot by robot, as a fleet's do.
+        let all: Vec<SemanticKeyframe> = (0..per_robot)
+            .flat_map(|id| (0..robots).map(move |robot| fleet_keyframe(robot, id)))
+            .collect();
+        for batch in all.chunks(97) {
+            insert(&store, batch.to_vec()).await;
+        }
+        {
+            let index = store.index();
+            let ungrouped = index.ungrouped_rows();
+            assert!(ungrouped < GROUP_TAIL_ROWS, "{ungrouped} rows left ungrouped");
+            let grouped = index.len() - ungrouped;
+            assert!(grouped >= GROUP_TAIL_ROWS);
+            // Among the grouped rows, each map is one run.
+            let mut seen = std::collections::HashSet::new();
+            for row in 0..grouped {
+                let map = index.meta(row).map_key();
+                if row == 0 || index.meta(row - 1).map_key() != map {
+                    assert!(seen.insert(map.clone()), "{map:?} in two runs");
+                }
+            }
+            assert_eq!(seen.len(), 2 * robots);
+        }
+        assert!(store.snapshot().unwrap().is_some());
+    }
+    let store = open_manual(dir.path());
+    assert!(matches!(store.opened().source, IndexSource::Snapshot { .. }));
+    let loaded = contents(&store);
+    assert_eq!(loaded.len(), robots * per_robot as usize);
+    drop(store);
+    assert_eq!(loaded, rebuilt_from_tree(dir.path()));
+}
+
+#[tokio::test]
+async fn a_snapshot_taken_while_the_rows_are_regrouped_fails_instead_of_missing_a_keyframe() {
+    let dir = tempfile::tempdir().unwrap();
+    let store = open_manual(dir.path());
+    for id in 0..20 {
+        insert(&store, vec![kf("a", "s", id, id % 2), kf("b", "s", id, 0)]).await;
+    }
+    assert_eq!(store.index().ungrouped_rows(), 40);
+    let checkpoints = store.checkpoints.clone();
+    let index = checkpoints.index.clone();
+    let mut between = move || {
+        index.write().group_tail();
+    };
+    let written = tokio::task::spawn_blocking(move || {
+        snapshot::write_in_chunks(
+            &checkpoints.dir,
+            checkpoints.store_id,
+            &checkpoints.index,
+            &checkpoints.applied,
+            Some(4),
+            &mut between,
+        )
+    })
+    .await
+    .unwrap();
+    assert!(
+        matches!(written, Err(snapshot::SnapshotError::Regrouped)),
+        "{:?}",
+        written.map(|(_, sequence)| sequence)
+    );
+}

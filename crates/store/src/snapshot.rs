@@ -89,6 +89,13 @@ pub enum SnapshotError {
     /// The rows do not make an index.
     #[error("{0}")]
     Restore(#[from] RestoreError),
+    /// The index's rows were reordered (grouped by map) between two of the
+    /// snapshot's chunks, so the chunks may miss a keyframe; the writer
+    /// does not group while a snapshot is written, so this is a guard.
+    #[error(
+        "the index's rows were reordered while the snapshot was written; it is taken again later"
+    )]
+    Regrouped,
 }
 
 /// Path of the snapshot in data directory `dir`.
@@ -165,6 +172,10 @@ const CHUNK_BYTES: usize = 8 << 20;
 /// down, from the last position, and the chunks move down too, so every
 /// untouched keyframe is in some chunk; one that moved from a written chunk
 /// into an unwritten one is written twice, and loading keeps one copy.
+/// Grouping the rows by map ([`Index::group_tail`]) moves rows up as well:
+/// the writer does not group while a snapshot is written, and a snapshot
+/// that sees the [layout epoch](Index::layout_epoch) change fails
+/// ([`SnapshotError::Regrouped`]) instead of missing a keyframe.
 pub fn write(
     dir: &Path,
     store_id: u128,
@@ -210,12 +221,16 @@ pub(crate) fn write_in_chunks(
     let mut dim;
     let mut sequence = None;
     let mut next = usize::MAX; // rows below this are still to be written
+    let mut epoch = None;
     let (mut descriptors, mut records) = (Vec::<f32>::new(), Vec::<u8>::new());
     loop {
         descriptors.clear();
         records.clear();
         {
             let index = index.read();
+            if *epoch.get_or_insert(index.layout_epoch()) != index.layout_epoch() {
+                return Err(SnapshotError::Regrouped);
+            }
             sequence.get_or_insert_with(|| applied.load(Ordering::Acquire));
             dim = index.dim();
             let hi = next.min(index.len());

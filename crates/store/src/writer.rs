@@ -322,6 +322,27 @@ struct Publisher {
 }
 
 impl Publisher {
+    /// Groups the index's newest rows by map once enough have come
+    /// ([`Index::group_tail_if_due`]), unless a snapshot is being written:
+    /// it reads the rows in pieces and relies on them moving only down.
+    /// A copy of [`humem_core::index::GROUP_TAIL_ROWS`] rows under the
+    /// write lock, once per that many inserts.
+    fn group_tail(&self, index: &mut Index) {
+        if index.ungrouped_rows() < humem_core::index::GROUP_TAIL_ROWS {
+            return;
+        }
+        let Some(_no_snapshot) = self.checkpoints.writing.try_lock() else {
+            return;
+        };
+        let started = std::time::Instant::now();
+        let rows = index.group_tail_if_due();
+        tracing::debug!(
+            rows,
+            ms = started.elapsed().as_secs_f64() * 1e3,
+            "grouped the newest rows by map"
+        );
+    }
+
     fn run(self, groups: std::sync::mpsc::Receiver<Published>) {
         for group in groups {
             self.publish(group);
@@ -354,6 +375,7 @@ impl Publisher {
                 }
             }
             self.placement.apply(&mut index);
+            self.group_tail(&mut index);
             self.applied.store(sequence, Ordering::Release);
             (index.len() as u64, index.verdicts().len() as u64)
         };

@@ -95,6 +95,29 @@ impl AppearanceMatrix {
         self.norms.swap_remove(i);
     }
 
+    /// Reorders the rows from `from` on: row `from + i` becomes the old
+    /// row `order[i]` (`order` a permutation of `from..len()`).
+    pub fn permute_tail(&mut self, from: usize, order: &[usize]) {
+        assert_eq!(
+            from + order.len(),
+            self.len(),
+            "not a permutation of the tail"
+        );
+        let old_norms = self.norms[from..].to_vec();
+        let old_data = if self.data.is_empty() {
+            Vec::new()
+        } else {
+            self.data[from * LEN..].to_vec()
+        };
+        for (i, &row) in order.iter().enumerate() {
+            self.norms[from + i] = old_norms[row - from];
+            if !old_data.is_empty() {
+                let (to, at) = ((from + i) * LEN, (row - from) * LEN);
+                self.data[to..to + LEN].copy_from_slice(&old_data[at..at + LEN]);
+            }
+        }
+    }
+
     /// Removes every row.
     pub fn clear(&mut self) {
         self.data.clear();

@@ -153,6 +153,25 @@ impl CodeMatrix {
         self.rows.swap_remove(i);
     }
 
+    /// Reorders the rows from `from` on: row `from + i` becomes the old
+    /// row `order[i]` (`order` a permutation of `from..len()`). The codes
+    /// move as they are, without encoding again.
+    pub fn permute_tail(&mut self, from: usize, order: &[usize]) {
+        assert_eq!(
+            from + order.len(),
+            self.len(),
+            "not a permutation of the tail"
+        );
+        let stride = self.stride;
+        let old_codes = self.codes[from * stride..].to_vec();
+        let old_rows = self.rows[from..].to_vec();
+        for (i, &row) in order.iter().enumerate() {
+            let (to, at) = ((from + i) * stride, (row - from) * stride);
+            self.codes[to..to + stride].copy_from_slice(&old_codes[at..at + stride]);
+            self.rows[from + i] = old_rows[row - from];
+        }
+    }
+
     /// Removes every row.
     pub fn clear(&mut self) {
         self.codes.clear();

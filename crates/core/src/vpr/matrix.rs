@@ -3,11 +3,10 @@
 //! SCAL is one pass over N descriptors of dimension d, bound by memory
 //! bandwidth. Rows are therefore stored row-major in a single `Vec<f32>` (no
 //! per-row allocation, no pointer chasing), removal is `swap_remove` so the
-//! storage stays dense, and [`dot`] is written with eight independent
-//! accumulators over `chunks_exact(8)` so that LLVM vectorises it without
-//! `unsafe` or target-specific intrinsics; [`multiversion`] compiles it for
-//! AVX-512, AVX2 and NEON and picks the clone at run time (clones differ in
-//! instructions, not in the order of additions, so results are the same).
+//! storage stays dense, and [`dot`] sums in eight independent lanes (see
+//! [`crate::vpr::kernels::f32_lane_sums`]: AVX where the CPU has it, a
+//! plain loop compiled per instruction set elsewhere; the order of the
+//! additions, and so the result, is the same on every CPU).
 //!
 //! The matrix keeps the one-byte [`CodeMatrix`] of its rows in step with
 //! them, so that large stores can be scanned on the codes first; a store
@@ -17,8 +16,6 @@
 use std::borrow::Cow;
 use std::io;
 use std::path::Path;
-
-use multiversion::multiversion;
 
 use crate::vpr::codes::CodeMatrix;
 use crate::vpr::row_file::RowFile;
@@ -297,6 +294,31 @@ impl DescriptorMatrix {
         self.rows = last;
     }
 
+    /// Reorders the rows from `from` on, with their codes: row `from + i`
+    /// becomes the old row `order[i]` (`order` a permutation of
+    /// `from..len()`). Rows in a file are read and written back in one
+    /// call each.
+    pub fn permute_tail(&mut self, from: usize, order: &[usize]) {
+        assert_eq!(
+            from + order.len(),
+            self.rows,
+            "not a permutation of the tail"
+        );
+        let dim = self.dim;
+        let old = self.rows(from, order.len()).into_owned();
+        let mut new = Vec::with_capacity(old.len());
+        for &row in order {
+            new.extend_from_slice(&old[(row - from) * dim..(row - from + 1) * dim]);
+        }
+        match &mut self.data {
+            Rows::Memory(data) => data[from * dim..].copy_from_slice(&new),
+            Rows::File(file) => file
+                .write(from, &new)
+                .unwrap_or_else(|e| row_file_failed("reorder rows", e)),
+        }
+        self.codes.permute_tail(from, order);
+    }
+
     /// Removes every row, keeping the dimension and where the rows live.
     pub fn clear(&mut self) {
         match &mut self.data {
@@ -311,53 +333,22 @@ impl DescriptorMatrix {
 }
 
 /// `aᵀb` over the common prefix of `a` and `b` (they have equal length in
-/// practice). Eight independent accumulators let LLVM keep one SIMD register
-/// of partial sums instead of a serial dependency chain.
-#[multiversion(targets("x86_64+avx512f+avx512bw+avx512vl", "x86_64+avx2+fma", "aarch64+neon"))]
+/// practice): [`multi_dot`] with one query, so that a product computed on
+/// its own and in a scan are the same bits.
 pub fn dot(a: &[f32], b: &[f32]) -> f32 {
-    let n = a.len().min(b.len());
-    let (a, b) = (&a[..n], &b[..n]);
-    let mut acc = [0.0f32; 8];
-    let a_chunks = a.chunks_exact(8);
-    let b_chunks = b.chunks_exact(8);
-    let tail: f32 = a_chunks
-        .remainder()
-        .iter()
-        .zip(b_chunks.remainder())
-        .map(|(x, y)| x * y)
-        .sum();
-    for (ca, cb) in a_chunks.zip(b_chunks) {
-        for ((s, x), y) in acc.iter_mut().zip(ca).zip(cb) {
-            *s += x * y;
-        }
-    }
-    let pairs = [
-        acc[0] + acc[4],
-        acc[1] + acc[5],
-        acc[2] + acc[6],
-        acc[3] + acc[7],
-    ];
-    (pairs[0] + pairs[2]) + (pairs[1] + pairs[3]) + tail
+    let [d] = multi_dot(&[a], b);
+    d
 }
 
 /// `[q₀ᵀrow, q₁ᵀrow, …]`: the dot products of one row with `Q` queries,
-/// reading the row once. SCAL compares every stored row with the query and
-/// its predecessors; fusing those products into one pass over the matrix
-/// keeps the scan bound by one read of memory instead of `Q`.
-#[multiversion(targets("x86_64+avx512f+avx512bw+avx512vl", "x86_64+avx2+fma", "aarch64+neon"))]
+/// reading the row from memory once. SCAL compares every stored row with
+/// the query and its predecessors; fusing those products into one pass
+/// over the matrix keeps the scan bound by one read of memory instead of
+/// `Q`.
 pub fn multi_dot<const Q: usize>(queries: &[&[f32]; Q], row: &[f32]) -> [f32; Q] {
     let n = queries.iter().fold(row.len(), |n, q| n.min(q.len()));
     let full = n - n % 8;
-    let mut acc = [[0.0f32; 8]; Q];
-    for start in (0..full).step_by(8) {
-        let r: &[f32; 8] = row[start..start + 8].try_into().expect("8 lanes");
-        for (sums, q) in acc.iter_mut().zip(queries) {
-            let q: &[f32; 8] = q[start..start + 8].try_into().expect("8 lanes");
-            for lane in 0..8 {
-                sums[lane] += q[lane] * r[lane];
-            }
-        }
-    }
+    let acc = crate::vpr::kernels::f32_lane_sums(queries, row, full);
     let mut out = [0.0f32; Q];
     for ((o, sums), q) in out.iter_mut().zip(&acc).zip(queries) {
         let tail: f32 = q[full..n]

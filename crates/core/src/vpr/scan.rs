@@ -72,6 +72,18 @@ pub const COMPRESSED_MIN_ROWS: usize = 32_768;
 /// Rows per block of parallel work.
 const BLOCK: usize = 4096;
 
+/// The fewest rows per block of the exact pass over a small visit.
+const MIN_BLOCK: usize = 256;
+
+/// Rows per block of the exact pass over `rows` rows: [`BLOCK`], or fewer
+/// when that would leave cores idle (a query's partition of a few
+/// thousand rows), so that every core gets two blocks. Each row's result
+/// depends only on the row, so the blocks change the time, not the answer.
+fn exact_block(rows: usize) -> usize {
+    rows.div_ceil(2 * rayon::current_num_threads())
+        .clamp(MIN_BLOCK, BLOCK)
+}
+
 /// How many runs ahead a scan over scattered rows prefetches
 /// ([`DescriptorMatrix::prefetch_row`](crate::vpr::matrix::DescriptorMatrix::prefetch_row)).
 const PREFETCH_RUNS_AHEAD: usize = 4;
@@ -459,21 +471,24 @@ where
     // Block by block, and within a block run by run, so that rows kept in
     // a file are read in one call a run.
     let mut s_e = vec![[0.0; STEPS]; visit.len()];
-    s_e.par_chunks_mut(BLOCK).enumerate().for_each(|(b, out)| {
-        let block = visit.block(b * BLOCK, out.len());
-        let runs = block.runs();
-        for (k, &(at, first, len)) in runs.iter().enumerate() {
-            // Scattered rows: the row a few runs ahead starts loading now
-            // (a long run the hardware prefetcher follows on its own).
-            if let Some(&(_, ahead, _)) = runs.get(k + PREFETCH_RUNS_AHEAD) {
-                matrix.prefetch_row(ahead);
+    let block_rows = exact_block(visit.len());
+    s_e.par_chunks_mut(block_rows)
+        .enumerate()
+        .for_each(|(b, out)| {
+            let block = visit.block(b * block_rows, out.len());
+            let runs = block.runs();
+            for (k, &(at, first, len)) in runs.iter().enumerate() {
+                // Scattered rows: the row a few runs ahead starts loading now
+                // (a long run the hardware prefetcher follows on its own).
+                if let Some(&(_, ahead, _)) = runs.get(k + PREFETCH_RUNS_AHEAD) {
+                    matrix.prefetch_row(ahead);
+                }
+                let data = matrix.rows(first, len);
+                for (i, r) in data.chunks_exact(dim).enumerate() {
+                    out[at + i] = side.exact_row(memory, first + i, r);
+                }
             }
-            let data = matrix.rows(first, len);
-            for (i, r) in data.chunks_exact(dim).enumerate() {
-                out[at + i] = side.exact_row(memory, first + i, r);
-            }
-        }
-    });
+        });
     let all = visit.block(0, visit.len());
     // A chain row outside the visited rows (a filter whose partition
     // splits a track) is scored on its own: the same value, read again.
@@ -483,7 +498,7 @@ where
     };
     let mut hits: Vec<ScalHit> = (0..visit.len())
         .into_par_iter()
-        .with_min_len(BLOCK)
+        .with_min_len(block_rows)
         .map(|i| all.row(i))
         .filter(|&row| eligible.test(row))
         .map(|row| {
