@@ -26,7 +26,7 @@ use crate::vpr::operating_point::{OperatingPoint, Sample};
 use crate::vpr::{self, DescriptorMatrix, KeyframeMemory};
 
 mod grouping;
-pub use grouping::GROUP_TAIL_ROWS;
+pub use grouping::{TailGrouping, GROUP_TAIL_ROWS};
 
 /// A map: (robot, session, map id).
 #[derive(
@@ -175,6 +175,9 @@ pub struct Index {
     grouped: usize,
     /// Groupings so far ([`Index::layout_epoch`]).
     layout_epoch: u64,
+    /// Changes to the rows so far: a planned grouping applies only to the
+    /// index it was planned on.
+    changes: u64,
 }
 
 /// An operating point and what it was estimated with.
@@ -211,6 +214,7 @@ impl Index {
             spacings: Mutex::new(HashMap::new()),
             grouped: 0,
             layout_epoch: 0,
+            changes: 0,
         }
     }
 
@@ -418,6 +422,7 @@ impl Index {
     /// into its track.
     fn attach(&mut self, row: usize, keyframe: SemanticKeyframe) {
         debug_assert_eq!(row, self.rows.len());
+        self.changes += 1;
         self.preds.push(NO_ROW);
         self.tags
             .push(crate::vpr::calibration::sample_tag(&keyframe.key));
@@ -614,6 +619,7 @@ impl Index {
         let Some(row) = self.by_key.remove(key) else {
             return false;
         };
+        self.changes += 1;
         self.unlink(row);
         for text in distinct_texts(&self.rows[row].objects) {
             if let Some(count) = self.text_df.get_mut(&text) {
@@ -657,6 +663,7 @@ impl Index {
             return false;
         };
         self.forget_spacing(&self.rows[row].map_key());
+        self.changes += 1;
         self.rows[row].pose = pose;
         if let Some(map_id) = map_id {
             if map_id != self.rows[row].map_id {

@@ -394,7 +394,10 @@ async fn the_writer_groups_a_fleets_newest_rows_by_map_and_a_reopen_finds_the_sa
         {
             let index = store.index();
             let ungrouped = index.ungrouped_rows();
-            assert!(ungrouped < GROUP_TAIL_ROWS, "{ungrouped} rows left ungrouped");
+            assert!(
+                ungrouped < GROUP_TAIL_ROWS,
+                "{ungrouped} rows left ungrouped"
+            );
             let grouped = index.len() - ungrouped;
             assert!(grouped >= GROUP_TAIL_ROWS);
             // Among the grouped rows, each map is one run.
@@ -410,7 +413,10 @@ async fn the_writer_groups_a_fleets_newest_rows_by_map_and_a_reopen_finds_the_sa
         assert!(store.snapshot().unwrap().is_some());
     }
     let store = open_manual(dir.path());
-    assert!(matches!(store.opened().source, IndexSource::Snapshot { .. }));
+    assert!(matches!(
+        store.opened().source,
+        IndexSource::Snapshot { .. }
+    ));
     let loaded = contents(&store);
     assert_eq!(loaded.len(), robots * per_robot as usize);
     drop(store);

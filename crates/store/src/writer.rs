@@ -325,20 +325,28 @@ impl Publisher {
     /// Groups the index's newest rows by map once enough have come
     /// ([`Index::group_tail_if_due`]), unless a snapshot is being written:
     /// it reads the rows in pieces and relies on them moving only down.
-    /// A copy of [`humem_core::index::GROUP_TAIL_ROWS`] rows under the
-    /// write lock, once per that many inserts.
-    fn group_tail(&self, index: &mut Index) {
-        if index.ungrouped_rows() < humem_core::index::GROUP_TAIL_ROWS {
+    /// The new order and the copies of the rows are made under the read
+    /// lock, while queries go on; only putting them in place takes the
+    /// write lock. This thread is the index's only writer, so nothing
+    /// changes in between (and a plan that found a change would do
+    /// nothing).
+    fn group_tail(&self) {
+        if self.index.read().ungrouped_rows() < humem_core::index::GROUP_TAIL_ROWS {
             return;
         }
         let Some(_no_snapshot) = self.checkpoints.writing.try_lock() else {
             return;
         };
         let started = std::time::Instant::now();
-        let rows = index.group_tail_if_due();
+        let Some(plan) = self.index.read().plan_tail_grouping() else {
+            return;
+        };
+        let planned = started.elapsed();
+        let rows = self.index.write().apply_tail_grouping(plan);
         tracing::debug!(
             rows,
-            ms = started.elapsed().as_secs_f64() * 1e3,
+            planned_ms = planned.as_secs_f64() * 1e3,
+            applied_ms = (started.elapsed() - planned).as_secs_f64() * 1e3,
             "grouped the newest rows by map"
         );
     }
@@ -375,7 +383,6 @@ impl Publisher {
                 }
             }
             self.placement.apply(&mut index);
-            self.group_tail(&mut index);
             self.applied.store(sequence, Ordering::Release);
             (index.len() as u64, index.verdicts().len() as u64)
         };
@@ -398,6 +405,8 @@ impl Publisher {
                 }
             }
         }
+        // After the answers: the callers do not wait for it.
+        self.group_tail();
     }
 }
 

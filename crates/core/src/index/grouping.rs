@@ -10,7 +10,10 @@
 //! again and again would cost a copy of the store per change; instead the
 //! rows appended since the last grouping (the *tail*) are sorted among
 //! themselves by (robot, session, map, keyframe id) once there are
-//! [`GROUP_TAIL_ROWS`] of them. Each grouped tail then holds one run per
+//! [`GROUP_TAIL_ROWS`] of them: the order and copies of the rows in it are
+//! made while queries go on ([`Index::plan_tail_grouping`]), and only
+//! putting them in place needs the index to itself
+//! ([`Index::apply_tail_grouping`]). Each grouped tail then holds one run per
 //! map, so a map's rows form one run per tail it wrote to (a robot that
 //! inserts one keyframe in fifty gets runs of about eighty rows), which a
 //! scan reads at the speed of a long run; only the rows of the current,
@@ -27,6 +30,8 @@
 //! displaced stay where they are until the store is opened again.
 
 use super::{Index, NO_ROW};
+use crate::vpr::appearance::AppearanceMatrix;
+use crate::vpr::matrix::MatrixRows;
 
 /// Rows appended since the last grouping from which
 /// [`Index::group_tail_if_due`] groups them.
@@ -40,7 +45,9 @@ impl Index {
 
     /// Groups the tail ([`Index::group_tail`]) once it holds
     /// [`GROUP_TAIL_ROWS`] rows; returns the rows it reordered (0: not
-    /// due). The store's writer calls it after every group it applies.
+    /// due). The store's writer does the same in two halves, the copies
+    /// under the shared lock and only their placing under the exclusive
+    /// one.
     pub fn group_tail_if_due(&mut self) -> usize {
         if self.ungrouped_rows() >= GROUP_TAIL_ROWS {
             self.group_tail()
@@ -66,26 +73,63 @@ impl Index {
     /// Sorts the rows appended since the last grouping by (robot,
     /// session, map, keyframe id), everything row-aligned moving with
     /// them, and returns how many there were. Rows before them stay where
-    /// they are.
+    /// they are. [`Index::plan_tail_grouping`] then
+    /// [`Index::apply_tail_grouping`], for an index no one else reads.
     pub fn group_tail(&mut self) -> usize {
+        match self.plan_tail_grouping() {
+            Some(plan) => self.apply_tail_grouping(plan),
+            None => 0,
+        }
+    }
+
+    /// The first half of [`Index::group_tail`], which only reads: the
+    /// tail's new order and copies of its descriptors, codes and
+    /// thumbnails in that order, the bulk of the work, so that queries go
+    /// on meanwhile under a shared lock. `None` without a tail.
+    pub fn plan_tail_grouping(&self) -> Option<TailGrouping> {
         let from = self.grouped.min(self.rows.len());
         let len = self.rows.len();
         if from == len {
-            return 0;
+            return None;
         }
         let mut order: Vec<usize> = (from..len).collect();
         order.sort_unstable_by_key(|&row| {
             let ids = &self.ids[row];
             (ids.robot, ids.session, ids.map_id, ids.keyframe_id)
         });
+        Some(TailGrouping {
+            from,
+            changes: self.changes,
+            matrix: self.matrix.gathered(&order),
+            appearance: self.appearance.gathered(&order),
+            order,
+        })
+    }
+
+    /// The second half of [`Index::group_tail`]: puts the planned rows in
+    /// place (one copy each of the descriptors, codes and thumbnails), moves
+    /// the row tables and fixes every link to a moved row. Returns the
+    /// rows moved, or 0, doing nothing, if the index changed since the
+    /// plan was made.
+    pub fn apply_tail_grouping(&mut self, plan: TailGrouping) -> usize {
+        let TailGrouping {
+            from,
+            changes,
+            order,
+            matrix,
+            appearance,
+        } = plan;
+        let len = self.rows.len();
+        if changes != self.changes || from + order.len() != len {
+            return 0;
+        }
         // new_row[old − from]: where each tail row goes.
         let mut new_row = vec![0usize; order.len()];
         for (i, &old) in order.iter().enumerate() {
             new_row[old - from] = from + i;
         }
-
-        self.matrix.permute_tail(from, &order);
-        self.appearance.permute_tail(from, &order);
+        self.matrix.overwrite_tail(from, matrix);
+        self.appearance.overwrite_tail(from, appearance);
         permute_tail(&mut self.rows, from, &order);
         permute_tail(&mut self.ids, from, &order);
         permute_tail(&mut self.preds, from, &order);
@@ -111,8 +155,22 @@ impl Index {
         }
         self.grouped = len;
         self.layout_epoch += 1;
+        self.changes += 1;
         len - from
     }
+}
+
+/// A grouping of an index's tail, planned and not yet applied (see
+/// [`Index::plan_tail_grouping`]).
+#[derive(Debug)]
+pub struct TailGrouping {
+    from: usize,
+    /// The index's change count when planned.
+    changes: u64,
+    /// The old row of each new tail position.
+    order: Vec<usize>,
+    matrix: MatrixRows,
+    appearance: AppearanceMatrix,
 }
 
 /// Reorders `values[from..]` so that position `from + i` holds the old
@@ -205,6 +263,26 @@ mod tests {
             .collect();
         assert_eq!(kept, first_rows);
         assert!(runs_per_map(&index).values().all(|&runs| runs <= 2));
+    }
+
+    #[test]
+    fn a_plan_made_before_a_change_is_not_applied() {
+        let mut index = Index::new(0);
+        for step in 0..10u64 {
+            for robot in ["a", "b"] {
+                index.upsert(kf_of(robot, "s", step, 0));
+            }
+        }
+        let plan = index.plan_tail_grouping().unwrap();
+        index.upsert(kf_of("c", "s", 0, 0));
+        let before = contents(&index);
+        assert_eq!(index.apply_tail_grouping(plan), 0);
+        check(&index);
+        assert_eq!(contents(&index), before);
+        assert_eq!((index.ungrouped_rows(), index.layout_epoch()), (21, 0));
+        let plan = index.plan_tail_grouping().unwrap();
+        assert_eq!(index.apply_tail_grouping(plan), 21);
+        check(&index);
     }
 
     #[test]

@@ -95,27 +95,30 @@ impl AppearanceMatrix {
         self.norms.swap_remove(i);
     }
 
-    /// Reorders the rows from `from` on: row `from + i` becomes the old
-    /// row `order[i]` (`order` a permutation of `from..len()`).
-    pub fn permute_tail(&mut self, from: usize, order: &[usize]) {
-        assert_eq!(
-            from + order.len(),
-            self.len(),
-            "not a permutation of the tail"
-        );
-        let old_norms = self.norms[from..].to_vec();
-        let old_data = if self.data.is_empty() {
-            Vec::new()
-        } else {
-            self.data[from * LEN..].to_vec()
-        };
-        for (i, &row) in order.iter().enumerate() {
-            self.norms[from + i] = old_norms[row - from];
-            if !old_data.is_empty() {
-                let (to, at) = ((from + i) * LEN, (row - from) * LEN);
-                self.data[to..to + LEN].copy_from_slice(&old_data[at..at + LEN]);
+    /// Copies of the rows `order` lists, in that order (see
+    /// [`AppearanceMatrix::overwrite_tail`]).
+    pub fn gathered(&self, order: &[usize]) -> AppearanceMatrix {
+        let mut data = Vec::new();
+        if !self.data.is_empty() {
+            data.reserve(order.len() * LEN);
+            for &row in order {
+                data.extend_from_slice(&self.data[row * LEN..(row + 1) * LEN]);
             }
         }
+        AppearanceMatrix {
+            data,
+            norms: order.iter().map(|&row| self.norms[row]).collect(),
+        }
+    }
+
+    /// Replaces the rows from `from` on with those of `rows` (as many as
+    /// there are; gathered from this matrix).
+    pub fn overwrite_tail(&mut self, from: usize, rows: AppearanceMatrix) {
+        assert_eq!(from + rows.len(), self.len(), "not the tail's rows");
+        if !self.data.is_empty() {
+            self.data[from * LEN..].copy_from_slice(&rows.data);
+        }
+        self.norms[from..].copy_from_slice(&rows.norms);
     }
 
     /// Removes every row.

@@ -30,6 +30,14 @@ pub struct CodeMatrix {
     rows: Vec<RowCode>,
 }
 
+/// Some rows' codes, copied out of a [`CodeMatrix`]
+/// ([`CodeMatrix::gathered`]).
+#[derive(Debug, Clone, PartialEq, Default)]
+pub struct CodeRows {
+    codes: Vec<u8>,
+    rows: Vec<RowCode>,
+}
+
 /// How one row's codes decode, and how far they are from the row.
 #[derive(Debug, Clone, Copy, PartialEq, Default)]
 struct RowCode {
@@ -153,23 +161,28 @@ impl CodeMatrix {
         self.rows.swap_remove(i);
     }
 
-    /// Reorders the rows from `from` on: row `from + i` becomes the old
-    /// row `order[i]` (`order` a permutation of `from..len()`). The codes
-    /// move as they are, without encoding again.
-    pub fn permute_tail(&mut self, from: usize, order: &[usize]) {
-        assert_eq!(
-            from + order.len(),
-            self.len(),
-            "not a permutation of the tail"
-        );
+    /// Copies of the rows `order` lists, in that order: the first half of
+    /// a reordering that reads under a shared lock
+    /// ([`CodeMatrix::overwrite_tail`] is the other). The codes are copied
+    /// as they are, not encoded again.
+    pub fn gathered(&self, order: &[usize]) -> CodeRows {
         let stride = self.stride;
-        let old_codes = self.codes[from * stride..].to_vec();
-        let old_rows = self.rows[from..].to_vec();
-        for (i, &row) in order.iter().enumerate() {
-            let (to, at) = ((from + i) * stride, (row - from) * stride);
-            self.codes[to..to + stride].copy_from_slice(&old_codes[at..at + stride]);
-            self.rows[from + i] = old_rows[row - from];
+        let mut codes = Vec::with_capacity(order.len() * stride);
+        for &row in order {
+            codes.extend_from_slice(&self.codes[row * stride..(row + 1) * stride]);
         }
+        CodeRows {
+            codes,
+            rows: order.iter().map(|&row| self.rows[row]).collect(),
+        }
+    }
+
+    /// Replaces the rows from `from` on with `rows` (as many as there
+    /// are).
+    pub fn overwrite_tail(&mut self, from: usize, rows: CodeRows) {
+        assert_eq!(from + rows.rows.len(), self.len(), "not the tail's rows");
+        self.codes[from * self.stride..].copy_from_slice(&rows.codes);
+        self.rows[from..].copy_from_slice(&rows.rows);
     }
 
     /// Removes every row.

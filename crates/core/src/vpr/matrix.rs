@@ -37,6 +37,14 @@ pub struct DescriptorMatrix {
     codes: CodeMatrix,
 }
 
+/// Some rows of a [`DescriptorMatrix`] with their codes, copied out of it
+/// ([`DescriptorMatrix::gathered`]).
+#[derive(Debug, Clone, PartialEq, Default)]
+pub struct MatrixRows {
+    values: Vec<f32>,
+    codes: crate::vpr::codes::CodeRows,
+}
+
 /// Where the f32 rows are.
 #[derive(Debug)]
 enum Rows {
@@ -294,29 +302,40 @@ impl DescriptorMatrix {
         self.rows = last;
     }
 
-    /// Reorders the rows from `from` on, with their codes: row `from + i`
-    /// becomes the old row `order[i]` (`order` a permutation of
-    /// `from..len()`). Rows in a file are read and written back in one
-    /// call each.
-    pub fn permute_tail(&mut self, from: usize, order: &[usize]) {
-        assert_eq!(
-            from + order.len(),
-            self.rows,
-            "not a permutation of the tail"
-        );
+    /// Copies of the rows `order` lists, in that order, with their codes:
+    /// the half of a reordering that only reads, so that it can run under
+    /// a shared lock ([`DescriptorMatrix::overwrite_tail`] is the other).
+    /// Rows in a file are read in one call a run of consecutive rows.
+    pub fn gathered(&self, order: &[usize]) -> MatrixRows {
         let dim = self.dim;
-        let old = self.rows(from, order.len()).into_owned();
-        let mut new = Vec::with_capacity(old.len());
-        for &row in order {
-            new.extend_from_slice(&old[(row - from) * dim..(row - from + 1) * dim]);
+        let mut values = Vec::with_capacity(order.len() * dim);
+        let mut i = 0;
+        while i < order.len() {
+            let mut run = 1;
+            while i + run < order.len() && order[i + run] == order[i] + run {
+                run += 1;
+            }
+            values.extend_from_slice(&self.rows(order[i], run));
+            i += run;
         }
+        MatrixRows {
+            values,
+            codes: self.codes.gathered(order),
+        }
+    }
+
+    /// Replaces the rows from `from` on with `rows` (as many as there are,
+    /// gathered from this matrix), in memory or in the row file.
+    pub fn overwrite_tail(&mut self, from: usize, rows: MatrixRows) {
+        let count = rows.values.len() / self.dim.max(1);
+        assert_eq!(from + count, self.rows, "not the tail's rows");
         match &mut self.data {
-            Rows::Memory(data) => data[from * dim..].copy_from_slice(&new),
+            Rows::Memory(data) => data[from * self.dim..].copy_from_slice(&rows.values),
             Rows::File(file) => file
-                .write(from, &new)
+                .write(from, &rows.values)
                 .unwrap_or_else(|e| row_file_failed("reorder rows", e)),
         }
-        self.codes.permute_tail(from, order);
+        self.codes.overwrite_tail(from, rows.codes);
     }
 
     /// Removes every row, keeping the dimension and where the rows live.
