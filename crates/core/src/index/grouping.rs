@@ -27,7 +27,10 @@
 //!
 //! Erasures move the last row into the hole (see [`Index::remove`]) and
 //! corrected poses may move a keyframe to another map in place; the rows so
-//! displaced stay where they are until the store is opened again.
+//! displaced stay where they are (a grouping sorts only the rows appended
+//! since the last one). A replaced keyframe is such an erasure plus an
+//! append, so under replacements alone the tail keeps its length and is
+//! not grouped again.
 
 use super::{Index, NO_ROW};
 use crate::vpr::appearance::AppearanceMatrix;
