@@ -26,7 +26,7 @@ use crate::vpr::operating_point::{OperatingPoint, Sample};
 use crate::vpr::{self, DescriptorMatrix, KeyframeMemory};
 
 mod grouping;
-pub use grouping::{Grouping, Replaced, GROUP_TAIL_ROWS, REGROUP_ALL_SHARE};
+pub use grouping::{TailGrouping, GROUP_TAIL_ROWS};
 
 /// A map: (robot, session, map id).
 #[derive(
@@ -175,10 +175,6 @@ pub struct Index {
     grouped: usize,
     /// Groupings so far ([`Index::layout_epoch`]).
     layout_epoch: u64,
-    /// Rows among `0..grouped` moved there by an erasure or moved to
-    /// another map since every row was last sorted
-    /// ([`Index::displaced_rows`]).
-    displaced: usize,
     /// Changes to the rows so far: a planned grouping applies only to the
     /// index it was planned on.
     changes: u64,
@@ -218,7 +214,6 @@ impl Index {
             spacings: Mutex::new(HashMap::new()),
             grouped: 0,
             layout_epoch: 0,
-            displaced: 0,
             changes: 0,
         }
     }
@@ -647,10 +642,6 @@ impl Index {
         // grouped rows' last one): the grouped rows end where they did, or
         // at the new end.
         self.grouped = self.grouped.min(last);
-        if row < self.grouped {
-            // The moved row now sits among the grouped ones.
-            self.displaced = (self.displaced + 1).min(self.grouped);
-        }
         if row != last {
             let moved = &self.rows[row];
             self.by_key.insert(moved.key.clone(), row);
@@ -676,9 +667,6 @@ impl Index {
         self.rows[row].pose = pose;
         if let Some(map_id) = map_id {
             if map_id != self.rows[row].map_id {
-                if row < self.grouped {
-                    self.displaced = (self.displaced + 1).min(self.grouped);
-                }
                 self.unlink(row);
                 self.rows[row].map_id = map_id;
                 self.ids[row].map_id = map_id;

@@ -266,10 +266,9 @@ fn fleet_store(robots: usize, keyframes: usize, dim: usize) -> (Index, Vec<Durat
         index.upsert(keyframe);
         // As the store's writer does it: the plan while queries go on, the
         // placing (timed) with the index to itself.
-        if index.grouping_due() {
-            if let Some(plan) = index.plan_grouping() {
-                let (took, (_, replaced)) = timed(|| index.apply_grouping(plan));
-                drop(replaced);
+        if index.ungrouped_rows() >= humem_core::index::GROUP_TAIL_ROWS {
+            if let Some(plan) = index.plan_tail_grouping() {
+                let (took, _) = timed(|| index.apply_tail_grouping(plan));
                 groupings.push(took);
             }
         }
@@ -304,7 +303,7 @@ fn scoped(config: &Config, args: &ScanBench) -> anyhow::Result<Vec<ScopedRow>> {
         "bench scan: building the scoped store, {robots} robots x {keyframes} keyframes x {}",
         args.dim
     );
-    let (mut index, groupings) = fleet_store(robots, keyframes, args.dim);
+    let (index, groupings) = fleet_store(robots, keyframes, args.dim);
     let max = groupings
         .iter()
         .max()
@@ -356,33 +355,7 @@ fn scoped(config: &Config, args: &ScanBench) -> anyhow::Result<Vec<ScopedRow>> {
             identical,
         });
     }
-    regroup_after_culling(&mut index);
     Ok(table)
-}
-
-/// What sorting every row costs once erasures have displaced enough of
-/// them: every robot's every eighth keyframe erased, as ORB-SLAM3 culls
-/// keyframes, then the grouping the store's writer would run, timed in
-/// its two halves.
-fn regroup_after_culling(index: &mut Index) {
-    let culled: Vec<_> = (0..index.len())
-        .map(|row| index.meta(row).key.clone())
-        .filter(|key| key.keyframe_id % 8 == 3)
-        .collect();
-    for key in &culled {
-        index.remove(key);
-    }
-    let displaced = index.displaced_rows();
-    let (planned, plan) = timed(|| index.plan_grouping());
-    let Some(plan) = plan else { return };
-    let (applied, (rows, replaced)) = timed(|| index.apply_grouping(plan));
-    drop(replaced);
-    eprintln!(
-        "bench scan: {} keyframes culled, {displaced} rows displaced; the next grouping sorted {rows} rows: {:.0} ms copying under the read lock, {:.0} ms holding the index",
-        culled.len(),
-        planned.as_secs_f64() * 1e3,
-        applied.as_secs_f64() * 1e3
-    );
 }
 
 /// Prints the scoped case's table.

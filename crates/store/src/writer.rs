@@ -322,8 +322,7 @@ struct Publisher {
 }
 
 impl Publisher {
-    /// Groups the index's newest rows by map once enough have come, or
-    /// every row once erasures have displaced enough
+    /// Groups the index's newest rows by map once enough have come
     /// ([`Index::group_tail_if_due`]), unless a snapshot is being written:
     /// it reads the rows in pieces and relies on them moving only down.
     /// The new order and the copies of the rows are made under the read
@@ -332,25 +331,22 @@ impl Publisher {
     /// changes in between (and a plan that found a change would do
     /// nothing).
     fn group_tail(&self) {
-        if !self.index.read().grouping_due() {
+        if self.index.read().ungrouped_rows() < humem_core::index::GROUP_TAIL_ROWS {
             return;
         }
         let Some(_no_snapshot) = self.checkpoints.writing.try_lock() else {
             return;
         };
         let started = std::time::Instant::now();
-        let Some(plan) = self.index.read().plan_grouping() else {
+        let Some(plan) = self.index.read().plan_tail_grouping() else {
             return;
         };
         let planned = started.elapsed();
-        // What the grouping replaced is freed after the lock is let go.
-        let (rows, replaced) = self.index.write().apply_grouping(plan);
-        let applied = started.elapsed() - planned;
-        drop(replaced);
+        let rows = self.index.write().apply_tail_grouping(plan);
         tracing::debug!(
             rows,
             planned_ms = planned.as_secs_f64() * 1e3,
-            applied_ms = applied.as_secs_f64() * 1e3,
+            applied_ms = (started.elapsed() - planned).as_secs_f64() * 1e3,
             "grouped the newest rows by map"
         );
     }

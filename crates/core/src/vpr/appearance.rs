@@ -112,22 +112,13 @@ impl AppearanceMatrix {
     }
 
     /// Replaces the rows from `from` on with those of `rows` (as many as
-    /// there are; gathered from this matrix); from row 0, by taking `rows`
-    /// and handing back the old matrix.
-    pub fn overwrite_tail(
-        &mut self,
-        from: usize,
-        rows: AppearanceMatrix,
-    ) -> Option<AppearanceMatrix> {
+    /// there are; gathered from this matrix).
+    pub fn overwrite_tail(&mut self, from: usize, rows: AppearanceMatrix) {
         assert_eq!(from + rows.len(), self.len(), "not the tail's rows");
-        if from == 0 {
-            return Some(std::mem::replace(self, rows));
-        }
         if !self.data.is_empty() {
             self.data[from * LEN..].copy_from_slice(&rows.data);
         }
         self.norms[from..].copy_from_slice(&rows.norms);
-        None
     }
 
     /// Removes every row.

@@ -178,19 +178,11 @@ impl CodeMatrix {
     }
 
     /// Replaces the rows from `from` on with `rows` (as many as there
-    /// are); from row 0, by taking `rows`' buffers and handing back the
-    /// old ones.
-    pub fn overwrite_tail(&mut self, from: usize, rows: CodeRows) -> Option<CodeRows> {
+    /// are).
+    pub fn overwrite_tail(&mut self, from: usize, rows: CodeRows) {
         assert_eq!(from + rows.rows.len(), self.len(), "not the tail's rows");
-        if from == 0 {
-            return Some(CodeRows {
-                codes: std::mem::replace(&mut self.codes, rows.codes),
-                rows: std::mem::replace(&mut self.rows, rows.rows),
-            });
-        }
         self.codes[from * self.stride..].copy_from_slice(&rows.codes);
         self.rows[from..].copy_from_slice(&rows.rows);
-        None
     }
 
     /// Removes every row.

@@ -325,30 +325,17 @@ impl DescriptorMatrix {
     }
 
     /// Replaces the rows from `from` on with `rows` (as many as there are,
-    /// gathered from this matrix), in memory or in the row file. From row
-    /// 0 in memory it takes `rows`' buffers instead of copying them and
-    /// hands back the old ones, for the caller to free once it no longer
-    /// holds a lock.
-    pub fn overwrite_tail(&mut self, from: usize, rows: MatrixRows) -> Option<MatrixRows> {
+    /// gathered from this matrix), in memory or in the row file.
+    pub fn overwrite_tail(&mut self, from: usize, rows: MatrixRows) {
         let count = rows.values.len() / self.dim.max(1);
         assert_eq!(from + count, self.rows, "not the tail's rows");
-        let old_values = match &mut self.data {
-            Rows::Memory(data) if from == 0 => Some(std::mem::replace(data, rows.values)),
-            Rows::Memory(data) => {
-                data[from * self.dim..].copy_from_slice(&rows.values);
-                None
-            }
-            Rows::File(file) => {
-                file.write(from, &rows.values)
-                    .unwrap_or_else(|e| row_file_failed("reorder rows", e));
-                None
-            }
-        };
-        let old_codes = self.codes.overwrite_tail(from, rows.codes);
-        old_values.map(|values| MatrixRows {
-            values,
-            codes: old_codes.unwrap_or_default(),
-        })
+        match &mut self.data {
+            Rows::Memory(data) => data[from * self.dim..].copy_from_slice(&rows.values),
+            Rows::File(file) => file
+                .write(from, &rows.values)
+                .unwrap_or_else(|e| row_file_failed("reorder rows", e)),
+        }
+        self.codes.overwrite_tail(from, rows.codes);
     }
 
     /// Removes every row, keeping the dimension and where the rows live.
