@@ -98,15 +98,12 @@ impl AppearanceMatrix {
     /// Copies of the rows `order` lists, in that order (see
     /// [`AppearanceMatrix::overwrite_tail`]).
     pub fn gathered(&self, order: &[usize]) -> AppearanceMatrix {
-        let mut data = Vec::new();
-        if !self.data.is_empty() {
-            data.reserve(order.len() * LEN);
-            for &row in order {
-                data.extend_from_slice(&self.data[row * LEN..(row + 1) * LEN]);
-            }
-        }
         AppearanceMatrix {
-            data,
+            data: if self.data.is_empty() {
+                Vec::new()
+            } else {
+                super::gather_rows(&self.data, LEN, order)
+            },
             norms: order.iter().map(|&row| self.norms[row]).collect(),
         }
     }

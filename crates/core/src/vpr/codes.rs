@@ -166,13 +166,8 @@ impl CodeMatrix {
     /// ([`CodeMatrix::overwrite_tail`] is the other). The codes are copied
     /// as they are, not encoded again.
     pub fn gathered(&self, order: &[usize]) -> CodeRows {
-        let stride = self.stride;
-        let mut codes = Vec::with_capacity(order.len() * stride);
-        for &row in order {
-            codes.extend_from_slice(&self.codes[row * stride..(row + 1) * stride]);
-        }
         CodeRows {
-            codes,
+            codes: super::gather_rows(&self.codes, self.stride, order),
             rows: order.iter().map(|&row| self.rows[row]).collect(),
         }
     }

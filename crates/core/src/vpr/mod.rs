@@ -81,3 +81,14 @@ pub(crate) fn clip01(x: f32) -> f32 {
         0.0
     }
 }
+
+/// Copies of the rows `order` lists, in that order, from a row-major table
+/// of `stride` values a row: the read-only half of a reordering
+/// (descriptor codes, thumbnails).
+pub(crate) fn gather_rows<T: Copy>(data: &[T], stride: usize, order: &[usize]) -> Vec<T> {
+    let mut gathered = Vec::with_capacity(order.len() * stride);
+    for &row in order {
+        gathered.extend_from_slice(&data[row * stride..(row + 1) * stride]);
+    }
+    gathered
+}
