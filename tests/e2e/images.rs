@@ -375,3 +375,75 @@ async fn the_first_look_skips_images_without_text_and_reads_the_rest() {
         .unwrap();
     assert!(times.skipped && lines.is_empty(), "{lines:?}");
 }
+
+/// `[perception.reuse]` through the service: a keyframe that shows what its
+/// session's last read keyframe showed gets that read's text without OCR
+/// running (no `ocr_det` stage, counted by the metric); another robot's
+/// session, a different view and the `max_carried` bound each read afresh.
+#[tokio::test(flavor = "multi_thread")]
+async fn a_similar_keyframe_of_the_same_session_carries_the_text_over() {
+    let dir = tempfile::tempdir().unwrap();
+    let server = Server::start_with(
+        dir.path(),
+        &[
+            "HUMEM_PERCEPTION__ENABLED=true",
+            "HUMEM_PERCEPTION__REUSE__MAX_CARRIED=1",
+            "HUMEM_PERCEPTION__REUSE__MIN_SIMILARITY=0.9",
+        ],
+    );
+    let client = server.client().await;
+    let insert = |robot: &'static str, id: u64, png: Vec<u8>| {
+        let mut client = client.clone();
+        async move {
+            let reply = client
+                .insert(proto::InsertRequest {
+                    keyframe: Some(keyframe(robot, id, image(png))),
+                })
+                .await
+                .unwrap()
+                .into_inner();
+            let stages: Vec<String> = reply.timings.iter().map(|t| t.stage.clone()).collect();
+            (
+                texts(&reply.features.unwrap()),
+                stages.contains(&"ocr_det".into()),
+            )
+        }
+    };
+    let carried = |server: &Server| {
+        Server::sample(&server.scrape(), "humem_perception_objects_carried_total").unwrap()
+    };
+    let exit = rendered_text(&["EXIT 42", "MAIN ST"]);
+    let exit_again = {
+        // The same board, a little brighter: the thumbnail is patch-normalised.
+        let mut img = image::load_from_memory(&exit).unwrap().to_rgb8();
+        img.pixels_mut()
+            .for_each(|p| p.0 = p.0.map(|v| v.saturating_add(10)));
+        let mut png = Vec::new();
+        img.write_to(&mut Cursor::new(&mut png), image::ImageFormat::Png)
+            .unwrap();
+        png
+    };
+    let cedar = rendered_text(&["CEDAR AVE"]);
+
+    let (first, read) = insert("r", 1, exit.clone()).await;
+    assert!(read, "nothing to carry yet");
+    assert!(first.iter().any(|t| t.contains("EXIT")), "{first:?}");
+    assert_eq!(carried(&server), 0.0);
+
+    let (second, read) = insert("r", 2, exit_again.clone()).await;
+    assert!(!read, "carried, not read");
+    assert_eq!(second, first);
+    assert_eq!(carried(&server), 1.0);
+
+    // max_carried = 1: the next similar keyframe is read again.
+    let (_, read) = insert("r", 3, exit.clone()).await;
+    assert!(read, "at most one keyframe in a row is carried");
+    // Another robot's session has no read to carry.
+    let (_, read) = insert("other", 1, exit_again).await;
+    assert!(read, "sessions do not share reads");
+    // A different view is read.
+    let (third, read) = insert("r", 4, cedar).await;
+    assert!(read);
+    assert!(third.iter().any(|t| t.contains("CEDAR")), "{third:?}");
+    assert_eq!(carried(&server), 1.0);
+}

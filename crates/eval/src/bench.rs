@@ -7,6 +7,9 @@
 //! precisions, and reports the process's CPU time per call (user and
 //! system, `getrusage`): the core time a keyframe takes from the SLAM
 //! process beside it, which wall time on a busy machine does not show.
+//! Part 0b sends the images in order through the whole pipeline on one
+//! thread and reports the same per keyframe, at fp32, at the configured
+//! precisions, and with objects carried over between similar keyframes.
 //! Part 1 calls each model directly (no queue) with batches of 1, 4 and 8
 //! inputs, and text detection at the camera's aspect ratio against the
 //! fixed 640x480 letterbox it replaced. Part 2 runs the whole perception pipeline for concurrent
@@ -26,6 +29,7 @@ use humem_perception::geometry::Rect;
 use humem_perception::image::{self as img, EncodedImage, Encoding};
 use humem_perception::model::{ImageModel, Planes};
 use humem_perception::ocr::{self, canvas, OcrModels};
+use humem_perception::reuse::ReuseConfig;
 use humem_perception::runtime::SessionOptions;
 use humem_perception::{runtime, ImageInput, Perception};
 use humem_server::config::Config;
@@ -213,6 +217,7 @@ pub async fn perception(config: Config, args: PerceptionBench) -> anyhow::Result
         p.session_options().intra_threads
     );
     core_time(p, &decoded, args.repeats)?;
+    stream_core_time(&config, &images).await?;
     models_alone(p, &decoded, args.repeats)?;
     let batched_timings = pipeline_under_load(&config, &images, &args).await?;
     stage_table(&batched_timings);
@@ -342,6 +347,96 @@ fn core_time(
             .zip(r[1])
             .map_or("-".to_string(), |(a, b)| format!("{:.2}x", b / a));
         println!("| {name} | {} | {} | {ratio} |", cell(r[0]), cell(r[1]));
+    }
+    Ok(())
+}
+
+/// Part 0b: what a keyframe of a stream costs a core through the whole
+/// pipeline (decoding, descriptor+scene, OCR on the lines it finds, the
+/// thumbnail), one intra-op thread, batch 1, the images sent in order as
+/// one session: every model in fp32 (the baseline), the configured
+/// precisions, and the configured precisions with objects carried over
+/// between similar keyframes (`perception.reuse`; where the configuration
+/// has it off, `max_carried` 2 at the configured `min_similarity`).
+async fn stream_core_time(config: &Config, images: &[Vec<u8>]) -> anyhow::Result<()> {
+    let one_thread = |mut p: PerceptionConfig| {
+        p.intra_threads = 1;
+        p.workers = 1;
+        p.max_batch = 1;
+        p
+    };
+    let configured = one_thread(PerceptionConfig {
+        reuse: ReuseConfig {
+            max_carried: 0,
+            ..config.perception.reuse.clone()
+        },
+        ..config.perception.clone()
+    });
+    let mut fp32 = configured.clone();
+    fp32.descriptor.precision = Some(Precision::Fp32);
+    if let Some(scene) = &mut fp32.scene {
+        scene.precision = Some(Precision::Fp32);
+    }
+    if let Some(ocr) = &mut fp32.ocr {
+        ocr.detector_precision = Precision::Fp32;
+        ocr.recognizer_precision = Precision::Fp32;
+    }
+    if let Some(detector) = &mut fp32.detector {
+        detector.precision = Precision::Fp32;
+    }
+    let reuse = if config.perception.reuse.enabled() {
+        config.perception.reuse.clone()
+    } else {
+        ReuseConfig {
+            max_carried: 2,
+            ..config.perception.reuse.clone()
+        }
+    };
+    let carrying = PerceptionConfig {
+        reuse: reuse.clone(),
+        ..configured.clone()
+    };
+    println!(
+        "\n0b. core milliseconds per keyframe, whole pipeline, one intra-op thread, batch 1, the {} images in order as one session",
+        images.len()
+    );
+    println!("| pipeline | core ms | carried | vs fp32 |");
+    println!("| --- | --- | --- | --- |");
+    let mut baseline = None;
+    for (name, p) in [
+        ("every model fp32, every keyframe read".to_string(), fp32),
+        ("configured precisions".to_string(), configured),
+        (
+            format!(
+                "configured + reuse (max_carried {}, min_similarity {})",
+                reuse.max_carried, reuse.min_similarity
+            ),
+            carrying,
+        ),
+    ] {
+        let top_k = config.store.scene_top_k;
+        let perception = tokio::task::spawn_blocking(move || Perception::load(&p, top_k))
+            .await
+            .context("loading the models")??;
+        for data in images.iter().take(2) {
+            perception.extract(ImageInput::file(data.clone())).await?;
+        }
+        let mut carried = 0;
+        let started = humem_perception::cpu::process_cpu_time();
+        for data in images {
+            let extracted = perception
+                .extract_in(ImageInput::file(data.clone()), Some("bench"))
+                .await?;
+            carried += usize::from(extracted.objects_carried);
+        }
+        let ms = (humem_perception::cpu::process_cpu_time() - started).as_secs_f64() * 1e3
+            / images.len().max(1) as f64;
+        let base = *baseline.get_or_insert(ms);
+        println!(
+            "| {name} | {ms:.1} | {carried}/{} | {:.2}x |",
+            images.len(),
+            ms / base
+        );
     }
     Ok(())
 }

@@ -328,12 +328,19 @@ async fn perceive_all(
     what: &str,
 ) -> anyhow::Result<Vec<Perceived>> {
     let bar = progress(paths.len(), what);
+    // The images are one camera stream, in order, as a SLAM client sends
+    // its keyframes (where `perception.reuse` carries objects over).
+    static STREAMS: std::sync::atomic::AtomicU64 = std::sync::atomic::AtomicU64::new(0);
+    let stream = format!(
+        "{what} #{}",
+        STREAMS.fetch_add(1, std::sync::atomic::Ordering::Relaxed)
+    );
     let mut out = Vec::with_capacity(paths.len());
     for path in paths {
         let data = image_bytes(path, degradation)?;
         let started = Instant::now();
         let extracted = perception
-            .extract(image_input(data, grey)?)
+            .extract_in(image_input(data, grey)?, Some(&stream))
             .await
             .with_context(|| format!("perceiving {}", path.display()))?;
         let decode = extracted

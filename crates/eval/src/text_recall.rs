@@ -56,6 +56,11 @@ pub struct TextRecallArgs {
     /// excluded), e.g. to check a few frames quickly.
     #[arg(long, value_parser = parse_range)]
     pub frames: Option<std::ops::Range<usize>>,
+    /// Read every this many frames only: a SLAM system's keyframes are
+    /// sparser than a data set's frames, which matters where
+    /// `perception.reuse` carries text over between similar keyframes.
+    #[arg(long, default_value_t = 1, value_parser = clap::value_parser!(u32).range(1..))]
+    pub stride: u32,
     /// Write every number as JSON here.
     #[arg(long)]
     pub json: Option<PathBuf>,
@@ -196,6 +201,9 @@ pub struct FolderResult {
     pub ocr_ms: f64,
     /// Mean time of the whole extraction per image, ms.
     pub extract_ms: f64,
+    /// Frames whose objects and text were carried over from an earlier
+    /// frame (`perception.reuse`) instead of read.
+    pub carried: usize,
 }
 
 impl FolderResult {
@@ -241,6 +249,7 @@ async fn folder(
     perception: &Perception,
     dataset: &Path,
     frames: Option<std::ops::Range<usize>>,
+    stride: usize,
     params: &VprParams,
 ) -> anyhow::Result<FolderResult> {
     let name = query_folder(dataset)?;
@@ -260,7 +269,7 @@ async fn folder(
         .iter()
         .zip(poses.iter().map(|(_, pose)| pose))
         .enumerate()
-        .filter(|(i, _)| frames.contains(i))
+        .filter(|(i, _)| frames.contains(i) && (i - frames.start).is_multiple_of(stride))
         .map(|(_, frame)| frame)
         .collect();
     if selected.is_empty() {
@@ -280,6 +289,7 @@ async fn folder(
         sightings_read: 0,
         ocr_ms: 0.0,
         extract_ms: 0.0,
+        carried: 0,
     };
     let bar = super::run::progress(selected.len(), &result.dataset);
     for (path, pose) in selected {
@@ -295,10 +305,11 @@ async fn folder(
         let data = std::fs::read(path).with_context(|| format!("reading {}", path.display()))?;
         let started = Instant::now();
         let extracted = perception
-            .extract(ImageInput::file(data))
+            .extract_in(ImageInput::file(data), Some(&result.dataset))
             .await
             .with_context(|| format!("perceiving {}", path.display()))?;
         result.extract_ms += started.elapsed().as_secs_f64() * 1e3;
+        result.carried += usize::from(extracted.objects_carried);
         result.ocr_ms += extracted
             .timings
             .iter()
@@ -345,7 +356,16 @@ pub async fn run(config: Config, args: TextRecallArgs) -> anyhow::Result<()> {
             .context("loading the models")??;
     let mut results = Vec::new();
     for dataset in &args.dataset {
-        results.push(folder(&perception, dataset, args.frames.clone(), &config.vpr).await?);
+        results.push(
+            folder(
+                &perception,
+                dataset,
+                args.frames.clone(),
+                args.stride as usize,
+                &config.vpr,
+            )
+            .await?,
+        );
     }
     let total = FolderResult {
         dataset: "all".into(),
@@ -356,16 +376,26 @@ pub async fn run(config: Config, args: TextRecallArgs) -> anyhow::Result<()> {
         sightings_read: results.iter().map(|r| r.sightings_read).sum(),
         ocr_ms: weighted(&results, |r| r.ocr_ms),
         extract_ms: weighted(&results, |r| r.extract_ms),
+        carried: results.iter().map(|r| r.carried).sum(),
     };
     println!(
-        "{:<40} {:>7} {:>10} {:>8} {:>8} {:>11} {:>8} {:>11}",
-        "data set", "frames", "with sign", "read", "recall", "signs read", "OCR ms", "extract ms"
+        "{:<40} {:>7} {:>8} {:>10} {:>8} {:>8} {:>11} {:>8} {:>11}",
+        "data set",
+        "frames",
+        "carried",
+        "with sign",
+        "read",
+        "recall",
+        "signs read",
+        "OCR ms",
+        "extract ms"
     );
     for r in results.iter().chain(std::iter::once(&total)) {
         println!(
-            "{:<40} {:>7} {:>10} {:>8} {:>8.3} {:>11} {:>8.1} {:>11.1}",
+            "{:<40} {:>7} {:>8} {:>10} {:>8} {:>8.3} {:>11} {:>8.1} {:>11.1}",
             r.dataset,
             r.frames,
+            r.carried,
             r.frames_with_sign,
             r.frames_read,
             r.recall(),
@@ -378,11 +408,15 @@ pub async fn run(config: Config, args: TextRecallArgs) -> anyhow::Result<()> {
         #[derive(Serialize)]
         struct Report<'a> {
             ocr: &'a Option<humem_perception::config::OcrConfig>,
+            reuse: &'a humem_perception::reuse::ReuseConfig,
+            stride: u32,
             folders: &'a [FolderResult],
             total: &'a FolderResult,
         }
         let report = Report {
             ocr: &config.perception.ocr,
+            reuse: &config.perception.reuse,
+            stride: args.stride,
             folders: &results,
             total: &total,
         };

@@ -118,6 +118,9 @@ pub struct PerceptionConfig {
     /// Compute the appearance thumbnail of every image (no model; about
     /// 1 ms). It counts in the score with `vpr.appearance_weight`.
     pub appearance: bool,
+    /// Objects and their text carried over between similar keyframes of
+    /// one session instead of detected and read again ([`crate::reuse`]).
+    pub reuse: crate::reuse::ReuseConfig,
 }
 
 impl Default for PerceptionConfig {
@@ -138,6 +141,7 @@ impl Default for PerceptionConfig {
             detector: None,
             ocr: Some(OcrConfig::default()),
             appearance: true,
+            reuse: crate::reuse::ReuseConfig::default(),
         }
     }
 }
@@ -230,6 +234,9 @@ impl PerceptionConfig {
                 .validate()
                 .map_err(|e| format!("perception.detector.{e}"))?;
         }
+        self.reuse
+            .validate()
+            .map_err(|e| format!("perception.reuse.{e}"))?;
         if self.workers == 0 {
             return Err("perception.workers must be at least 1".into());
         }

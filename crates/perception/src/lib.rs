@@ -23,6 +23,8 @@
 //! - [`ocr`]: PP-OCRv5 text detection and recognition;
 //! - [`check`]: every model's inputs and outputs against its
 //!   configuration (at load, and with one image by `humem models check`);
+//! - [`reuse`]: objects and text carried over between similar keyframes
+//!   of one stream instead of detected and read again;
 //! - [`cpu`]: the nice value perception's threads run at, and the CPU
 //!   time the process uses.
 
@@ -36,6 +38,7 @@ pub mod image;
 pub mod model;
 pub mod objects;
 pub mod ocr;
+pub mod reuse;
 pub mod runtime;
 pub mod yolo;
 
@@ -101,6 +104,9 @@ pub struct Extracted {
     /// `scene`, `detector`, `ocr_det`, `ocr_rec` (stages that did not run
     /// on their own are left out).
     pub timings: Vec<(&'static str, Duration)>,
+    /// The objects were carried over from an earlier keyframe of the
+    /// stream ([`reuse`]): no detector or OCR ran for this image.
+    pub objects_carried: bool,
 }
 
 /// Why an image could not be turned into features.
@@ -139,8 +145,10 @@ pub struct Perception {
     detector: Option<Detector>,
     text_object_class: String,
     scene_top_k: usize,
-    /// Whether the appearance thumbnail is computed.
+    /// Whether the appearance thumbnail is kept in the features.
     appearance: bool,
+    /// The last read of each stream, where objects may be carried over.
+    reuse: Option<Arc<reuse::ObjectReuse>>,
     /// The descriptor's length, where its graph fixes it.
     descriptor_len: Option<usize>,
 }
@@ -304,6 +312,7 @@ impl Perception {
                 .unwrap_or_default(),
             scene_top_k,
             appearance: config.appearance,
+            reuse: reuse::ObjectReuse::new(&config.reuse).map(Arc::new),
             descriptor_len,
         })
     }
@@ -317,11 +326,24 @@ impl Perception {
     /// Turns an image into features: descriptor, scene distribution, and
     /// objects with their text.
     pub async fn extract(&self, input: ImageInput) -> Result<Extracted, PerceptionError> {
+        self.extract_in(input, None).await
+    }
+
+    /// [`Perception::extract`] for an image of `stream` (any name of one
+    /// camera's sequence of keyframes, e.g. a robot's session): where
+    /// `perception.reuse` allows, the objects of the stream's last read are
+    /// carried over instead of detected and read again ([`reuse`]).
+    pub async fn extract_in(
+        &self,
+        input: ImageInput,
+        stream: Option<&str>,
+    ) -> Result<Extracted, PerceptionError> {
         let mut timings = Vec::new();
         let started = Instant::now();
         let global_config = self.global.config.clone();
         let scene_config = self.scene.as_ref().map(|s| s.config.clone());
-        let with_appearance = self.appearance;
+        let reuse = self.reuse.as_ref().zip(stream);
+        let with_appearance = self.appearance || reuse.is_some();
         let (image, global_input, scene_input, thumbnail) =
             tokio::task::spawn_blocking(move || {
                 let image = image::decode(&input.encoded())?;
@@ -345,11 +367,26 @@ impl Perception {
                 _ => Ok(None),
             }
         };
-        let objects = self.objects(image.clone());
+        let carried = reuse.and_then(|(reuse, stream)| reuse.carry(stream, &thumbnail));
+        let objects_carried = carried.is_some();
+        let objects = async {
+            match carried {
+                Some(objects) => Ok((objects, Vec::new())),
+                None => self.objects(image.clone()).await,
+            }
+        };
         let (global, scene, objects) = tokio::join!(global, scene, objects);
         let global = global?;
         let scene = scene?;
         let (objects, object_timings) = objects?;
+        if let (Some((reuse, stream)), false) = (reuse, objects_carried) {
+            reuse.remember(stream, thumbnail.clone(), objects.clone());
+        }
+        let thumbnail = if self.appearance {
+            thumbnail
+        } else {
+            Vec::new()
+        };
         timings.push(("descriptor", global.inference + global.queued));
 
         let mut outputs = global.output.0.into_iter();
@@ -373,6 +410,7 @@ impl Perception {
                 appearance: thumbnail,
             },
             timings,
+            objects_carried,
         })
     }
 }

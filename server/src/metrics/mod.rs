@@ -160,6 +160,18 @@ pub static QUERIES_REFUSED: LazyLock<IntCounterVec> = LazyLock::new(|| {
     )
 });
 
+/// Images whose objects were carried over (`perception.reuse`).
+pub static OBJECTS_CARRIED: LazyLock<IntCounter> = LazyLock::new(|| {
+    register(
+        IntCounter::new(
+            "humem_perception_objects_carried_total",
+            "images whose objects and text were carried over from the last read of their session \
+             instead of detected and read (perception.reuse)",
+        )
+        .unwrap(),
+    )
+});
+
 /// Keyframes stored by Insert and InsertBatch.
 pub static KEYFRAMES_INSERTED: LazyLock<IntCounter> = LazyLock::new(|| {
     register(IntCounter::new("humem_keyframes_inserted_total", "keyframes stored").unwrap())
@@ -449,6 +461,7 @@ pub fn init() {
     LazyLock::force(&QUERIES_SUPERSEDED);
     LazyLock::force(&QUERIES_REFUSED);
     LazyLock::force(&KEYFRAMES_INSERTED);
+    LazyLock::force(&OBJECTS_CARRIED);
     LazyLock::force(&CANDIDATES);
     LazyLock::force(&CANDIDATE_SCORE);
     LazyLock::force(&OPERATING_THRESHOLD);

@@ -283,7 +283,8 @@ impl Pipeline {
         };
         let mut perception_timings = Vec::new();
         if let Some(observation) = spec.observation.take() {
-            let (features, timings) = self.resolve(observation).await?;
+            let stream = stream_name(&spec.session.robot_id, &spec.session.session_id);
+            let (features, timings) = self.resolve(observation, &stream).await?;
             spec.observation = Some(Observation::Features(features));
             perception_timings = timings;
         }
@@ -324,8 +325,13 @@ impl Pipeline {
         Ok(QueryAnswer::Answered(outcome))
     }
 
-    /// The features of an observation: as sent, or made from its image.
-    async fn resolve(&self, observation: Observation) -> Result<Resolved, PipelineError> {
+    /// The features of an observation: as sent, or made from its image,
+    /// one of the camera `stream` (see [`stream_name`]).
+    async fn resolve(
+        &self,
+        observation: Observation,
+        stream: &str,
+    ) -> Result<Resolved, PipelineError> {
         match observation {
             Observation::Features(features) => Ok((features, Vec::new())),
             Observation::Image(image, field) => {
@@ -333,9 +339,12 @@ impl Pipeline {
                     return Err(PipelineError::NoPerception { field });
                 };
                 let extracted = perception
-                    .extract(image)
+                    .extract_in(image, Some(stream))
                     .await
                     .map_err(|source| PipelineError::Perception { field, source })?;
+                if extracted.objects_carried {
+                    metrics::OBJECTS_CARRIED.inc();
+                }
                 Ok((extracted.features, extracted.timings))
             }
         }
@@ -354,13 +363,16 @@ impl Pipeline {
                 &mut p.observation,
                 Observation::Features(Features::default()),
             );
-            observations.push(observation);
+            observations.push((observation, stream_name(&p.key.robot_id, &p.key.session_id)));
             metas.push(p);
         }
-        let resolved = futures::future::join_all(observations.into_iter().map(|o| self.resolve(o)))
-            .await
-            .into_iter()
-            .collect::<Result<Vec<_>, PipelineError>>()?;
+        let resolved = futures::future::join_all(observations.iter_mut().map(|(o, stream)| {
+            let o = std::mem::replace(o, Observation::Features(Features::default()));
+            self.resolve(o, stream)
+        }))
+        .await
+        .into_iter()
+        .collect::<Result<Vec<_>, PipelineError>>()?;
         let keyframes = metas
             .into_iter()
             .zip(&resolved)
@@ -395,4 +407,10 @@ impl Pipeline {
         }
         Ok(())
     }
+}
+
+/// The name of a robot's session as a camera stream of perception (whose
+/// last read may serve its next keyframes, `perception.reuse`).
+fn stream_name(robot_id: &str, session_id: &str) -> String {
+    format!("{robot_id}\u{1f}{session_id}")
 }
