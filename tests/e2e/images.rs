@@ -379,7 +379,8 @@ async fn the_first_look_skips_images_without_text_and_reads_the_rest() {
 /// `[perception.reuse]` through the service: a keyframe that shows what its
 /// session's last read keyframe showed gets that read's text without OCR
 /// running (no `ocr_det` stage, counted by the metric); another robot's
-/// session, a different view and the `max_carried` bound each read afresh.
+/// session, a different view, the `max_carried` bound and a reset of the
+/// session each make it read afresh.
 #[tokio::test(flavor = "multi_thread")]
 async fn a_similar_keyframe_of_the_same_session_carries_the_text_over() {
     let dir = tempfile::tempdir().unwrap();
@@ -446,4 +447,23 @@ async fn a_similar_keyframe_of_the_same_session_carries_the_text_over() {
     assert!(read);
     assert!(third.iter().any(|t| t.contains("CEDAR")), "{third:?}");
     assert_eq!(carried(&server), 1.0);
+
+    // Once carried again, then the session is reset: its next keyframe is
+    // read afresh, not served from a read of erased keyframes.
+    let (_, read) = insert("r", 5, rendered_text(&["CEDAR AVE"])).await;
+    assert!(!read);
+    assert_eq!(carried(&server), 2.0);
+    let (_, read) = insert("r", 6, exit.clone()).await;
+    assert!(read);
+    client
+        .clone()
+        .reset_session(proto::ResetSessionRequest {
+            robot_id: "r".into(),
+            session_id: "s".into(),
+        })
+        .await
+        .unwrap();
+    let (_, read) = insert("r", 7, exit).await;
+    assert!(read, "the reset session's read was forgotten");
+    assert_eq!(carried(&server), 2.0);
 }

@@ -323,6 +323,14 @@ impl Perception {
         self.descriptor_len
     }
 
+    /// Forgets the last read of `stream`, so that its next image is read
+    /// afresh (its keyframes were erased).
+    pub fn forget_stream(&self, stream: &str) {
+        if let Some(reuse) = &self.reuse {
+            reuse.forget(stream);
+        }
+    }
+
     /// Turns an image into features: descriptor, scene distribution, and
     /// objects with their text.
     pub async fn extract(&self, input: ImageInput) -> Result<Extracted, PerceptionError> {

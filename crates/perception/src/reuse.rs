@@ -20,8 +20,9 @@
 //!
 //! A stream is what the caller names one (the service: a robot's session);
 //! the last read of at most [`ReuseConfig::max_sessions`] streams is kept,
-//! the least recently used forgotten first. Nothing here is stored: a
-//! restarted service reads the next keyframe of every stream afresh.
+//! the least recently used forgotten first, and the service forgets a
+//! session's read when keyframes of it are erased. Nothing here is stored:
+//! a restarted service reads the next keyframe of every stream afresh.
 
 use serde::{Deserialize, Serialize};
 use std::collections::HashMap;
@@ -187,6 +188,11 @@ impl ObjectReuse {
         self.streams.lock().unwrap_or_else(|e| e.into_inner())
     }
 
+    /// Forgets the last read of `stream`.
+    pub fn forget(&self, stream: &str) {
+        self.lock().last.remove(stream);
+    }
+
     /// Streams remembered now.
     pub fn streams(&self) -> usize {
         self.lock().last.len()
@@ -282,5 +288,8 @@ mod tests {
         assert_eq!(reuse.carry("b", &view), None, "forgotten");
         assert_eq!(reuse.carry("a", &view), Some(sign("A")));
         assert_eq!(reuse.carry("c", &view), Some(sign("C")));
+        reuse.forget("c");
+        assert_eq!(reuse.carry("c", &view), None, "forgotten on request");
+        assert_eq!(reuse.streams(), 1);
     }
 }

@@ -170,6 +170,16 @@ impl Pipeline {
     }
 
     async fn write(&self, mutation: Mutation) -> Result<Stored, PipelineError> {
+        // Keyframes of a session going away: its last read must not carry
+        // their text into the session's next keyframes.
+        let erased = match &mutation {
+            Mutation::Erase { session, .. } | Mutation::ResetSession(session) => Some(session),
+            Mutation::ResetMap(map) => Some(&map.session),
+            _ => None,
+        };
+        if let (Some(session), Some(perception)) = (erased, &self.perception) {
+            perception.forget_stream(&stream_name(&session.robot_id, &session.session_id));
+        }
         match &self.replica {
             Some(replica) => {
                 let written = replica.write(mutation).await?;
