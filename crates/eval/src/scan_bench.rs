@@ -60,6 +60,12 @@ pub struct ScanBench {
     /// Keyframes per robot in the scoped case.
     #[arg(long, default_value_t = 10_000)]
     pub scoped_keyframes: usize,
+    /// The scoped case again after this share of the store was erased at
+    /// random (SLAM culling old keyframes on a revisit) and as many new
+    /// keyframes inserted, one after the other, as a store that has run
+    /// for a long time (0: skip it).
+    #[arg(long, default_value_t = 0.3)]
+    pub scoped_churn: f64,
 }
 
 /// Keyframes per place visit, on average: a robot passes a place in a few
@@ -292,18 +298,74 @@ struct ScopedRow {
     identical: usize,
 }
 
+/// Erases `share` of the rows of `index` (a [`fleet_store`] of `robots` x
+/// `keyframes`) at random, never one of robot 0's `kept` keyframes, each
+/// erasure followed by a new keyframe of the next robot in its map 1, and
+/// groups the tail as the store's writer does.
+fn churn(index: &mut Index, robots: usize, keyframes: usize, share: f64, kept: &[u64]) {
+    let changes = (share * (robots * keyframes) as f64) as usize;
+    let mut fleet = SyntheticFleet::new(robots * keyframes, index.dim(), robots);
+    let mut rng = Rng::new(11);
+    let mut next = robots * keyframes;
+    let mut done = 0;
+    while done < changes {
+        let robot = rng.next() as usize % robots;
+        let id = rng.next() % (next / robots) as u64;
+        let key = KeyframeKey {
+            robot_id: format!("robot-{robot}"),
+            session_id: "session".into(),
+            keyframe_id: id,
+        };
+        if (robot == 0 && kept.contains(&id)) || !index.remove(&key) {
+            continue;
+        }
+        let mut keyframe = fleet.keyframe(next);
+        keyframe.map_id = 1;
+        index.upsert(keyframe);
+        next += 1;
+        done += 1;
+        if index.ungrouped_rows() >= humem_core::index::GROUP_TAIL_ROWS {
+            if let Some(plan) = index.plan_tail_grouping() {
+                index.apply_tail_grouping(plan);
+            }
+        }
+    }
+}
+
+/// How many runs of consecutive rows robot 0's map 1 forms, and its rows:
+/// a scoped scan reads a run at memory speed and pays a fresh read for
+/// every run it starts.
+fn runs_of_queried_map(index: &Index) -> (usize, usize) {
+    let of_queried_map = |row: usize| {
+        let meta = index.meta(row);
+        meta.map_id == 1 && meta.key.robot_id == "robot-0"
+    };
+    let rows = (0..index.len()).filter(|&r| of_queried_map(r));
+    let runs = rows
+        .clone()
+        .filter(|&r| r == 0 || !of_queried_map(r - 1))
+        .count();
+    (runs, rows.count())
+}
+
 /// The scoped case: robot 0's loop queries (in its map 1) over each of
 /// [`SCOPES`], on every core as the server runs them, with the partitioned
 /// scan and with a scan of every row (what a query cost before the store
-/// was partitioned), answers compared.
-fn scoped(config: &Config, args: &ScanBench) -> anyhow::Result<Vec<ScopedRow>> {
+/// was partitioned), answers compared; then, with `--scoped-churn`, the
+/// same after a share of the store was erased and replaced by new
+/// keyframes.
+fn scoped(config: &Config, args: &ScanBench) -> anyhow::Result<Vec<(String, Vec<ScopedRow>)>> {
     let (robots, keyframes) = (args.scoped_robots, args.scoped_keyframes);
     ensure!(keyframes >= 200, "--scoped-keyframes must be at least 200");
+    ensure!(
+        (0.0..1.0).contains(&args.scoped_churn),
+        "--scoped-churn must be in [0, 1)"
+    );
     eprintln!(
         "bench scan: building the scoped store, {robots} robots x {keyframes} keyframes x {}",
         args.dim
     );
-    let (index, groupings) = fleet_store(robots, keyframes, args.dim);
+    let (mut index, groupings) = fleet_store(robots, keyframes, args.dim);
     let max = groupings
         .iter()
         .max()
@@ -315,12 +377,34 @@ fn scoped(config: &Config, args: &ScanBench) -> anyhow::Result<Vec<ScopedRow>> {
         median_ms(&groupings),
         index.ungrouped_rows()
     );
-    let k = config.vpr.top_k;
     let mut rng = Rng::new(7);
     let half = (keyframes / 2) as u64;
     let ids: Vec<u64> = (0..args.queries + 2)
         .map(|_| half + 2 + rng.next() % (half - 2))
         .collect();
+    let (runs, rows) = runs_of_queried_map(&index);
+    let mut tables = vec![(
+        format!("as inserted (the queried map: {rows} rows in {runs} runs)"),
+        scoped_queries(config, &index, &ids)?,
+    )];
+    if args.scoped_churn > 0.0 {
+        churn(&mut index, robots, keyframes, args.scoped_churn, &ids);
+        let (runs, rows) = runs_of_queried_map(&index);
+        tables.push((
+            format!(
+                "after {:.0} % of the store was erased and replaced (the queried map: {rows} rows in {runs} runs)",
+                100.0 * args.scoped_churn
+            ),
+            scoped_queries(config, &index, &ids)?,
+        ));
+    }
+    Ok(tables)
+}
+
+/// [`SCOPES`]' figures for the queries of robot 0's keyframes `ids` (the
+/// first two warm up and are not timed).
+fn scoped_queries(config: &Config, index: &Index, ids: &[u64]) -> anyhow::Result<Vec<ScopedRow>> {
+    let k = config.vpr.top_k;
     let mut table = Vec::new();
     for (name, scope, own_only) in SCOPES {
         let (mut full, mut parted, mut identical, mut eligible) = (vec![], vec![], 0, 0);
@@ -331,8 +415,8 @@ fn scoped(config: &Config, args: &ScanBench) -> anyhow::Result<Vec<ScopedRow>> {
             if own_only {
                 spec.readable_robots = Some(vec!["robot-0".into()]);
             }
-            let (t_full, a) = timed(|| query::run_full_scan(&index, &config.vpr, &spec));
-            let (t_parted, b) = timed(|| query::run(&index, &config.vpr, &spec));
+            let (t_full, a) = timed(|| query::run_full_scan(index, &config.vpr, &spec));
+            let (t_parted, b) = timed(|| query::run(index, &config.vpr, &spec));
             let (a, b) = (
                 a.map_err(|e| anyhow::anyhow!("query {id}: {e:?}"))?,
                 b.map_err(|e| anyhow::anyhow!("query {id}: {e:?}"))?,
@@ -358,14 +442,14 @@ fn scoped(config: &Config, args: &ScanBench) -> anyhow::Result<Vec<ScopedRow>> {
     Ok(table)
 }
 
-/// Prints the scoped case's table.
-fn print_scoped(args: &ScanBench, table: &[ScopedRow]) {
+/// Prints one of the scoped case's tables.
+fn print_scoped(args: &ScanBench, state: &str, table: &[ScopedRow]) {
     let threads = rayon::current_num_threads();
     let store = args.scoped_robots * args.scoped_keyframes;
     let all = table.last().map_or(f64::NAN, |r| r.partitioned);
     println!();
     println!(
-        "Scoped queries: {} robots x {} keyframes ({store}, {}-d, two maps a robot), robot 0's loop queries, SCAL only, {threads} cores, median of {}; ratios against ALL_MAPS in the same run",
+        "Scoped queries: {} robots x {} keyframes ({store}, {}-d, two maps a robot), {state}, robot 0's loop queries, SCAL only, {threads} cores, median of {}; ratios against ALL_MAPS in the same run",
         args.scoped_robots, args.scoped_keyframes, args.dim, args.queries
     );
     println!("| query | eligible | every row scanned | partitioned | partitioned vs ALL_MAPS | same answers |");
@@ -550,8 +634,9 @@ pub fn scan(config: Config, args: ScanBench) -> anyhow::Result<()> {
         );
     }
     if args.scoped_robots > 0 {
-        let scoped = scoped(&config, &args)?;
-        print_scoped(&args, &scoped);
+        for (state, table) in scoped(&config, &args)? {
+            print_scoped(&args, &state, &table);
+        }
     }
     Ok(())
 }
@@ -591,8 +676,16 @@ mod tests {
             dir: None,
             scoped_robots: 10,
             scoped_keyframes: 400,
+            scoped_churn: 0.3,
         };
-        let table = scoped(&Config::default(), &args).unwrap();
+        let tables = scoped(&Config::default(), &args).unwrap();
+        assert_eq!(tables.len(), 2, "as inserted, then after the churn");
+        let churned = &tables[1].1;
+        assert!(churned.iter().all(|r| r.identical == 3));
+        // The churn keeps the store's size, so every keyframe is still
+        // eligible over ALL_MAPS.
+        assert!(churned[2].eligible > 3_900, "{}", churned[2].eligible);
+        let table = &tables[0].1;
         let eligible: Vec<u64> = table.iter().map(|r| r.eligible).collect();
         // One map of robot 0 less the gap window, both of its maps, then
         // every keyframe (other robots' rows are always eligible).
