@@ -177,8 +177,9 @@ impl Pipeline {
             Mutation::ResetMap(map) => Some(&map.session),
             _ => None,
         };
-        if let (Some(session), Some(perception)) = (erased, &self.perception) {
-            perception.forget_stream(&stream_name(&session.robot_id, &session.session_id));
+        let stream = erased.and_then(|s| stream_name(&s.robot_id, &s.session_id));
+        if let (Some(stream), Some(perception)) = (stream, &self.perception) {
+            perception.forget_stream(&stream);
         }
         match &self.replica {
             Some(replica) => {
@@ -294,7 +295,7 @@ impl Pipeline {
         let mut perception_timings = Vec::new();
         if let Some(observation) = spec.observation.take() {
             let stream = stream_name(&spec.session.robot_id, &spec.session.session_id);
-            let (features, timings) = self.resolve(observation, &stream).await?;
+            let (features, timings) = self.resolve(observation, stream.as_deref()).await?;
             spec.observation = Some(Observation::Features(features));
             perception_timings = timings;
         }
@@ -336,11 +337,11 @@ impl Pipeline {
     }
 
     /// The features of an observation: as sent, or made from its image,
-    /// one of the camera `stream` (see [`stream_name`]).
+    /// one of the camera `stream` where it has one (see [`stream_name`]).
     async fn resolve(
         &self,
         observation: Observation,
-        stream: &str,
+        stream: Option<&str>,
     ) -> Result<Resolved, PipelineError> {
         match observation {
             Observation::Features(features) => Ok((features, Vec::new())),
@@ -349,7 +350,7 @@ impl Pipeline {
                     return Err(PipelineError::NoPerception { field });
                 };
                 let extracted = perception
-                    .extract_in(image, Some(stream))
+                    .extract_in(image, stream)
                     .await
                     .map_err(|source| PipelineError::Perception { field, source })?;
                 if extracted.objects_carried {
@@ -376,10 +377,11 @@ impl Pipeline {
             observations.push((observation, stream_name(&p.key.robot_id, &p.key.session_id)));
             metas.push(p);
         }
-        let resolved = futures::future::join_all(observations.iter_mut().map(|(o, stream)| {
-            let o = std::mem::replace(o, Observation::Features(Features::default()));
-            self.resolve(o, stream)
-        }))
+        let resolved = futures::future::join_all(
+            observations
+                .into_iter()
+                .map(|(o, stream)| async move { self.resolve(o, stream.as_deref()).await }),
+        )
         .await
         .into_iter()
         .collect::<Result<Vec<_>, PipelineError>>()?;
@@ -420,7 +422,8 @@ impl Pipeline {
 }
 
 /// The name of a robot's session as a camera stream of perception (whose
-/// last read may serve its next keyframes, `perception.reuse`).
-fn stream_name(robot_id: &str, session_id: &str) -> String {
-    format!("{robot_id}\u{1f}{session_id}")
+/// last read may serve its next keyframes, `perception.reuse`); none for
+/// a request that names no robot, whose images belong to no one stream.
+fn stream_name(robot_id: &str, session_id: &str) -> Option<String> {
+    (!robot_id.is_empty()).then(|| format!("{robot_id}\u{1f}{session_id}"))
 }
