@@ -324,11 +324,7 @@ fn churn(index: &mut Index, robots: usize, keyframes: usize, share: f64, kept: &
         index.upsert(keyframe);
         next += 1;
         done += 1;
-        if index.ungrouped_rows() >= humem_core::index::GROUP_TAIL_ROWS {
-            if let Some(plan) = index.plan_tail_grouping() {
-                index.apply_tail_grouping(plan);
-            }
-        }
+        index.group_tail_if_due();
     }
 }
 

@@ -184,15 +184,6 @@ impl Block<'_> {
         }
     }
 
-    /// The position of `row` in the block, if it is one of its rows.
-    #[inline]
-    fn position(&self, row: usize) -> Option<usize> {
-        match self {
-            Block::Range(first, len) => row.checked_sub(*first).filter(|i| i < len),
-            Block::Rows(rows) => rows.binary_search(&row).ok(),
-        }
-    }
-
     /// The block's runs of consecutive rows: `(position, first row, rows)`.
     fn runs(&self) -> Vec<(usize, usize, usize)> {
         match self {
@@ -501,7 +492,7 @@ where
     let all = visit.block(0, visit.len());
     // A chain row outside the visited rows (a filter whose partition
     // splits a track) is scored on its own: the same value, read again.
-    let s_e_of = |c: usize, j: usize| match all.position(c) {
+    let s_e_of = |c: usize, j: usize| match visit.position(c) {
         Some(i) => s_e[i][j],
         None => side.exact_row(memory, c, &matrix.row(c))[j],
     };
@@ -580,13 +571,8 @@ where
         .par_chunks_mut(BLOCK)
         .enumerate()
         .map(|(b, out)| {
-            let start = b * BLOCK;
-            let block = visit.block(start, out.len());
-            let upper_at = |c: usize, j: usize| match block
-                .position(c)
-                .map(|i| start + i)
-                .or_else(|| visit.position(c))
-            {
+            let block = visit.block(b * BLOCK, out.len());
+            let upper_at = |c: usize, j: usize| match visit.position(c) {
                 Some(i) => upper[i][j],
                 None => side.pair_bounds(memory, &codes, kernel, c, j).1,
             };
