@@ -26,7 +26,7 @@ use crate::vpr::operating_point::{OperatingPoint, Sample};
 use crate::vpr::{self, DescriptorMatrix, KeyframeMemory};
 
 mod grouping;
-pub use grouping::{TailGrouping, GROUP_TAIL_ROWS};
+pub use grouping::{RowGrouping, GROUP_TAIL_ROWS, GROUP_WINDOW_ROWS, REGROUP_DISPLACED_ROWS};
 
 /// A map: (robot, session, map id).
 #[derive(
@@ -173,6 +173,10 @@ pub struct Index {
     /// Rows `0..grouped` were grouped by map; the rows after them were
     /// appended since (see [`grouping`]).
     grouped: usize,
+    /// Rows put out of their map's run since it was last grouped, per
+    /// window of [`grouping::GROUP_WINDOW_ROWS`] grouped rows (see
+    /// [`grouping`]).
+    displaced: Vec<u32>,
     /// Groupings so far ([`Index::layout_epoch`]).
     layout_epoch: u64,
     /// Changes to the rows so far: a planned grouping applies only to the
@@ -213,6 +217,7 @@ impl Index {
             operating_point: Mutex::new(None),
             spacings: Mutex::new(HashMap::new()),
             grouped: 0,
+            displaced: Vec::new(),
             layout_epoch: 0,
             changes: 0,
         }
@@ -643,6 +648,7 @@ impl Index {
         // at the new end.
         self.grouped = self.grouped.min(last);
         if row != last {
+            self.note_displaced(row);
             let moved = &self.rows[row];
             self.by_key.insert(moved.key.clone(), row);
             let map = moved.map_key();
@@ -671,6 +677,7 @@ impl Index {
                 self.rows[row].map_id = map_id;
                 self.ids[row].map_id = map_id;
                 self.link(row);
+                self.note_displaced(row);
             }
         }
         true

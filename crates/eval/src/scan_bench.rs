@@ -274,7 +274,7 @@ fn fleet_store(robots: usize, keyframes: usize, dim: usize) -> (Index, Vec<Durat
         // placing (timed) with the index to itself.
         if index.ungrouped_rows() >= humem_core::index::GROUP_TAIL_ROWS {
             if let Some(plan) = index.plan_tail_grouping() {
-                let (took, _) = timed(|| index.apply_tail_grouping(plan));
+                let (took, _) = timed(|| index.apply_grouping(plan));
                 groupings.push(took);
             }
         }
@@ -301,13 +301,22 @@ struct ScopedRow {
 /// Erases `share` of the rows of `index` (a [`fleet_store`] of `robots` x
 /// `keyframes`) at random, never one of robot 0's `kept` keyframes, each
 /// erasure followed by a new keyframe of the next robot in its map 1, and
-/// groups the tail as the store's writer does.
-fn churn(index: &mut Index, robots: usize, keyframes: usize, share: f64, kept: &[u64]) {
+/// groups the tail and sorts scattered windows again as the store's writer
+/// does after each group of changes; returns how long each window's sorting
+/// held the index (the placing half, as in fleet_store).
+fn churn(
+    index: &mut Index,
+    robots: usize,
+    keyframes: usize,
+    share: f64,
+    kept: &[u64],
+) -> Vec<Duration> {
     let changes = (share * (robots * keyframes) as f64) as usize;
     let mut fleet = SyntheticFleet::new(robots * keyframes, index.dim(), robots);
     let mut rng = Rng::new(11);
     let mut next = robots * keyframes;
     let mut done = 0;
+    let mut regroupings = Vec::new();
     while done < changes {
         let robot = rng.next() as usize % robots;
         let id = rng.next() % (next / robots) as u64;
@@ -325,7 +334,12 @@ fn churn(index: &mut Index, robots: usize, keyframes: usize, share: f64, kept: &
         next += 1;
         done += 1;
         index.group_tail_if_due();
+        if let Some(plan) = index.plan_window_regrouping() {
+            let (took, _) = timed(|| index.apply_grouping(plan));
+            regroupings.push(took);
+        }
     }
+    regroupings
 }
 
 /// How many runs of consecutive rows robot 0's map 1 forms, and its rows:
@@ -384,13 +398,30 @@ fn scoped(config: &Config, args: &ScanBench) -> anyhow::Result<Vec<(String, Vec<
         scoped_queries(config, &index, &ids)?,
     )];
     if args.scoped_churn > 0.0 {
-        churn(&mut index, robots, keyframes, args.scoped_churn, &ids);
+        let regroupings = churn(&mut index, robots, keyframes, args.scoped_churn, &ids);
+        eprintln!(
+            "bench scan: windows of {} rows sorted again {} times during the churn, the index held for a median {:.1} ms, at most {:.1} ms",
+            humem_core::index::GROUP_WINDOW_ROWS,
+            regroupings.len(),
+            median_ms(&regroupings),
+            regroupings.iter().max().map_or(0.0, |d| d.as_secs_f64() * 1e3)
+        );
         let (runs, rows) = runs_of_queried_map(&index);
         tables.push((
             format!(
                 "after {:.0} % of the store was erased and replaced (the queried map: {rows} rows in {runs} runs)",
                 100.0 * args.scoped_churn
             ),
+            scoped_queries(config, &index, &ids)?,
+        ));
+        // The best any regrouping could do: every row sorted at once.
+        let (sorted, _) = timed(|| index.sort_rows(0, index.len()));
+        eprintln!(
+            "bench scan: the whole store sorted at once for the next table, the index held for {:.0} ms",
+            sorted.as_secs_f64() * 1e3
+        );
+        tables.push((
+            "the same store with every row sorted at once (what a whole-store regrouping would reach)".into(),
             scoped_queries(config, &index, &ids)?,
         ));
     }
@@ -675,9 +706,10 @@ mod tests {
             scoped_churn: 0.3,
         };
         let tables = scoped(&Config::default(), &args).unwrap();
-        assert_eq!(tables.len(), 2, "as inserted, then after the churn");
+        assert_eq!(tables.len(), 3, "as inserted, after the churn, sorted");
         let churned = &tables[1].1;
         assert!(churned.iter().all(|r| r.identical == 3));
+        assert!(tables[2].1.iter().all(|r| r.identical == 3));
         // The churn keeps the store's size, so every keyframe is still
         // eligible over ALL_MAPS.
         assert!(churned[2].eligible > 3_900, "{}", churned[2].eligible);

@@ -454,3 +454,63 @@ async fn a_snapshot_taken_while_the_rows_are_regrouped_fails_instead_of_missing_
         written.map(|(_, sequence)| sequence)
     );
 }
+
+#[tokio::test]
+async fn the_writer_sorts_again_rows_scattered_by_erasures_and_a_reopen_finds_the_same_store() {
+    use humem_core::index::{GROUP_TAIL_ROWS, REGROUP_DISPLACED_ROWS};
+    let dir = tempfile::tempdir().unwrap();
+    let robots = 3;
+    let per_robot = (GROUP_TAIL_ROWS / robots + 100) as u64;
+    let erased = u64::from(REGROUP_DISPLACED_ROWS) + 20;
+    let map_0 = MapKey {
+        session: session("robot-0", "s"),
+        map_id: 0,
+    };
+    // The runs robot 0's first map forms among the grouped rows.
+    let runs_of_map_0 = |store: &Store| {
+        let index = store.index();
+        let grouped = index.len() - index.ungrouped_rows();
+        let of_map = |row: usize| index.meta(row).map_key() == map_0;
+        (0..grouped)
+            .filter(|&row| of_map(row) && (row == 0 || !of_map(row - 1)))
+            .count()
+    };
+    {
+        let store = open_manual(dir.path());
+        let all: Vec<SemanticKeyframe> = (0..per_robot)
+            .flat_map(|id| (0..robots).map(move |robot| fleet_keyframe(robot, id)))
+            .collect();
+        for batch in all.chunks(97) {
+            insert(&store, batch.to_vec()).await;
+        }
+        assert_eq!(runs_of_map_0(&store), 1);
+        let epoch = store.index().layout_epoch();
+        // Every other keyframe of robot 0's first map erased, one at a
+        // time: each hole takes the store's last row, another map's.
+        for id in 0..erased {
+            let erase = Mutation::Erase {
+                session: session("robot-0", "s"),
+                keyframe_ids: vec![2 * id],
+            };
+            store.apply(erase).await.unwrap();
+            if id + 1 == u64::from(REGROUP_DISPLACED_ROWS) - 1 {
+                assert!(runs_of_map_0(&store) > 100, "scattered before it is due");
+                assert_eq!(store.index().layout_epoch(), epoch, "nothing sorted yet");
+            }
+        }
+        // The window was sorted again once it was due, and only the
+        // erasures after that scatter it.
+        assert!(store.index().layout_epoch() > epoch);
+        assert!(runs_of_map_0(&store) <= 25, "{}", runs_of_map_0(&store));
+        assert!(store.snapshot().unwrap().is_some());
+    }
+    let store = open_manual(dir.path());
+    assert!(matches!(
+        store.opened().source,
+        IndexSource::Snapshot { .. }
+    ));
+    let loaded = contents(&store);
+    assert_eq!(loaded.len(), robots * per_robot as usize - erased as usize);
+    drop(store);
+    assert_eq!(loaded, rebuilt_from_tree(dir.path()));
+}

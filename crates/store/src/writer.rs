@@ -31,6 +31,7 @@ use super::{
     Index, LogApplied, LogEntry, MapKey, Mutation, MutationOutcome, PoseUpdate, StoreError,
     META_DIM, META_LOG_POSITION,
 };
+use humem_core::index::RowGrouping;
 use humem_core::keyframe::{KeyframeKey, Pose, SemanticKeyframe, SessionKey};
 use humem_core::observe::SharedObserver;
 use humem_core::verdict::Verdict;
@@ -323,31 +324,53 @@ struct Publisher {
 
 impl Publisher {
     /// Groups the index's newest rows by map once enough have come
-    /// ([`Index::group_tail_if_due`]), unless a snapshot is being written:
-    /// it reads the rows in pieces and relies on them moving only down.
+    /// ([`Index::group_tail_if_due`]), then sorts again at most one window
+    /// of older rows that erasures have scattered
+    /// ([`Index::regroup_window_if_due`]), unless a snapshot is being
+    /// written: it reads the rows in pieces and relies on them not moving.
     /// The new order and the copies of the rows are made under the read
     /// lock, while queries go on; only putting them in place takes the
     /// write lock. This thread is the index's only writer, so nothing
     /// changes in between (and a plan that found a change would do
     /// nothing).
-    fn group_tail(&self) {
-        if self.index.read().ungrouped_rows() < humem_core::index::GROUP_TAIL_ROWS {
+    fn group_rows(&self) {
+        let (tail_due, window_due) = {
+            let index = self.index.read();
+            (
+                index.ungrouped_rows() >= humem_core::index::GROUP_TAIL_ROWS,
+                index.window_due().is_some(),
+            )
+        };
+        if !tail_due && !window_due {
             return;
         }
         let Some(_no_snapshot) = self.checkpoints.writing.try_lock() else {
             return;
         };
+        if tail_due {
+            self.apply_planned("grouped the newest rows by map", |index| {
+                index.plan_tail_grouping()
+            });
+        }
+        self.apply_planned("sorted again a window scattered by erasures", |index| {
+            index.plan_window_regrouping()
+        });
+    }
+
+    /// Plans a grouping under the read lock and applies it under the
+    /// write lock.
+    fn apply_planned(&self, what: &str, plan: impl FnOnce(&Index) -> Option<RowGrouping>) {
         let started = std::time::Instant::now();
-        let Some(plan) = self.index.read().plan_tail_grouping() else {
+        let Some(plan) = plan(&self.index.read()) else {
             return;
         };
         let planned = started.elapsed();
-        let rows = self.index.write().apply_tail_grouping(plan);
+        let rows = self.index.write().apply_grouping(plan);
         tracing::debug!(
             rows,
             planned_ms = planned.as_secs_f64() * 1e3,
             applied_ms = (started.elapsed() - planned).as_secs_f64() * 1e3,
-            "grouped the newest rows by map"
+            "{what}"
         );
     }
 
@@ -406,7 +429,7 @@ impl Publisher {
             }
         }
         // After the answers: the callers do not wait for it.
-        self.group_tail();
+        self.group_rows();
     }
 }
 

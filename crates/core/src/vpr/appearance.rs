@@ -96,7 +96,7 @@ impl AppearanceMatrix {
     }
 
     /// Copies of the rows `order` lists, in that order (see
-    /// [`AppearanceMatrix::overwrite_tail`]).
+    /// [`AppearanceMatrix::overwrite_rows`]).
     pub fn gathered(&self, order: &[usize]) -> AppearanceMatrix {
         AppearanceMatrix {
             data: if self.data.is_empty() {
@@ -110,12 +110,13 @@ impl AppearanceMatrix {
 
     /// Replaces the rows from `from` on with those of `rows` (as many as
     /// there are; gathered from this matrix).
-    pub fn overwrite_tail(&mut self, from: usize, rows: AppearanceMatrix) {
-        assert_eq!(from + rows.len(), self.len(), "not the tail's rows");
+    pub fn overwrite_rows(&mut self, from: usize, rows: AppearanceMatrix) {
+        let to = from + rows.len();
+        assert!(to <= self.len(), "rows past the end");
         if !self.data.is_empty() {
-            self.data[from * LEN..].copy_from_slice(&rows.data);
+            self.data[from * LEN..to * LEN].copy_from_slice(&rows.data);
         }
-        self.norms[from..].copy_from_slice(&rows.norms);
+        self.norms[from..to].copy_from_slice(&rows.norms);
     }
 
     /// Removes every row.

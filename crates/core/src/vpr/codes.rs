@@ -163,7 +163,7 @@ impl CodeMatrix {
 
     /// Copies of the rows `order` lists, in that order: the first half of
     /// a reordering that reads under a shared lock
-    /// ([`CodeMatrix::overwrite_tail`] is the other). The codes are copied
+    /// ([`CodeMatrix::overwrite_rows`] is the other). The codes are copied
     /// as they are, not encoded again.
     pub fn gathered(&self, order: &[usize]) -> CodeRows {
         CodeRows {
@@ -174,10 +174,11 @@ impl CodeMatrix {
 
     /// Replaces the rows from `from` on with `rows` (as many as there
     /// are).
-    pub fn overwrite_tail(&mut self, from: usize, rows: CodeRows) {
-        assert_eq!(from + rows.rows.len(), self.len(), "not the tail's rows");
-        self.codes[from * self.stride..].copy_from_slice(&rows.codes);
-        self.rows[from..].copy_from_slice(&rows.rows);
+    pub fn overwrite_rows(&mut self, from: usize, rows: CodeRows) {
+        let to = from + rows.rows.len();
+        assert!(to <= self.len(), "rows past the end");
+        self.codes[from * self.stride..to * self.stride].copy_from_slice(&rows.codes);
+        self.rows[from..to].copy_from_slice(&rows.rows);
     }
 
     /// Removes every row.

@@ -304,7 +304,7 @@ impl DescriptorMatrix {
 
     /// Copies of the rows `order` lists, in that order, with their codes:
     /// the half of a reordering that only reads, so that it can run under
-    /// a shared lock ([`DescriptorMatrix::overwrite_tail`] is the other).
+    /// a shared lock ([`DescriptorMatrix::overwrite_rows`] is the other).
     /// Rows in a file are read in one call a run of consecutive rows.
     pub fn gathered(&self, order: &[usize]) -> MatrixRows {
         let dim = self.dim;
@@ -326,16 +326,18 @@ impl DescriptorMatrix {
 
     /// Replaces the rows from `from` on with `rows` (as many as there are,
     /// gathered from this matrix), in memory or in the row file.
-    pub fn overwrite_tail(&mut self, from: usize, rows: MatrixRows) {
+    pub fn overwrite_rows(&mut self, from: usize, rows: MatrixRows) {
         let count = rows.values.len() / self.dim.max(1);
-        assert_eq!(from + count, self.rows, "not the tail's rows");
+        assert!(from + count <= self.rows, "rows past the end");
         match &mut self.data {
-            Rows::Memory(data) => data[from * self.dim..].copy_from_slice(&rows.values),
+            Rows::Memory(data) => {
+                data[from * self.dim..(from + count) * self.dim].copy_from_slice(&rows.values)
+            }
             Rows::File(file) => file
                 .write(from, &rows.values)
                 .unwrap_or_else(|e| row_file_failed("reorder rows", e)),
         }
-        self.codes.overwrite_tail(from, rows.codes);
+        self.codes.overwrite_rows(from, rows.codes);
     }
 
     /// Removes every row, keeping the dimension and where the rows live.
