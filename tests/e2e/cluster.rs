@@ -578,6 +578,63 @@ async fn a_halted_replica_refuses_queries_unless_told_to_serve_stale_reads() {
     assert!(!answered.candidates.is_empty());
 }
 
+/// `perception.reuse` on two replicas: a session reset through one keeps
+/// the other from carrying the session's last read (of keyframes now
+/// erased) into the session's next keyframe.
+#[tokio::test(flavor = "multi_thread")]
+async fn a_reset_through_another_replica_ends_the_read_a_session_carries() {
+    if !nats::available() {
+        return;
+    }
+    let nats = NatsCluster::start(1);
+    let (dir_a, dir_b) = (tempfile::tempdir().unwrap(), tempfile::tempdir().unwrap());
+    let reuse: Vec<String> = [
+        "HUMEM_CLUSTER__STREAM_REPLICAS=1",
+        "HUMEM_PERCEPTION__ENABLED=true",
+        "HUMEM_PERCEPTION__REUSE__MAX_CARRIED=2",
+        "HUMEM_PERCEPTION__REUSE__MIN_SIMILARITY=0.9",
+    ]
+    .map(String::from)
+    .into();
+    let a = replica_with(&nats, dir_a.path(), "a", &reuse);
+    let b = replica_with(&nats, dir_b.path(), "b", &reuse);
+    let board = crate::images::rendered_text(&["EXIT 42", "MAIN ST"]);
+    // Whether inserting keyframe `id` of robot r's session s through `a`
+    // read its image (ran the text detector) instead of carrying a read.
+    let read_on_a = |id: u64| {
+        let board = board.clone();
+        let a = &a;
+        async move {
+            let kf = crate::images::keyframe("r", id, crate::images::image(board));
+            let reply = a
+                .client()
+                .await
+                .insert(proto::InsertRequest { keyframe: Some(kf) })
+                .await
+                .unwrap()
+                .into_inner();
+            reply.timings.iter().any(|t| t.stage == "ocr_det")
+        }
+    };
+    assert!(read_on_a(1).await, "nothing to carry yet");
+    assert!(!read_on_a(2).await, "the same view is carried");
+
+    b.client()
+        .await
+        .reset_session(proto::ResetSessionRequest {
+            robot_id: "r".into(),
+            session_id: "s".into(),
+        })
+        .await
+        .unwrap();
+    let position = b.stats().await.log_position;
+    wait_for_position(&a, position, Duration::from_secs(30)).await;
+    assert_eq!(a.stats().await.keyframes, 0, "the reset reached replica a");
+    // max_carried = 2 would carry this one too: the reset made through b
+    // ended the read on a.
+    assert!(read_on_a(3).await, "a read of erased keyframes was carried");
+}
+
 #[tokio::test(flavor = "multi_thread")]
 async fn a_keyframe_quota_holds_when_three_replicas_take_writes_at_once() {
     if !nats::available() {

@@ -11,7 +11,7 @@ use humem_server::proto;
 use crate::harness::{datasets, Server};
 
 /// An encoded image as the API takes it.
-fn image(data: Vec<u8>) -> proto::Image {
+pub(crate) fn image(data: Vec<u8>) -> proto::Image {
     proto::Image {
         encoding: proto::image::Encoding::Unspecified as i32,
         data,
@@ -19,7 +19,7 @@ fn image(data: Vec<u8>) -> proto::Image {
     }
 }
 
-fn keyframe(robot: &str, id: u64, content: proto::Image) -> proto::Keyframe {
+pub(crate) fn keyframe(robot: &str, id: u64, content: proto::Image) -> proto::Keyframe {
     proto::Keyframe {
         robot_id: robot.into(),
         session_id: "s".into(),
@@ -33,7 +33,7 @@ fn keyframe(robot: &str, id: u64, content: proto::Image) -> proto::Keyframe {
 }
 
 /// Black text on a white board, as a PNG.
-fn rendered_text(lines: &[&str]) -> Vec<u8> {
+pub(crate) fn rendered_text(lines: &[&str]) -> Vec<u8> {
     let font_path = "/usr/share/fonts/truetype/dejavu/DejaVuSans-Bold.ttf";
     let font = ab_glyph::FontVec::try_from_vec(
         std::fs::read(font_path).expect("DejaVu fonts (Debian fonts-dejavu-core)"),

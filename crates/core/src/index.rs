@@ -179,6 +179,9 @@ pub struct Index {
     displaced: Vec<u32>,
     /// Groupings so far ([`Index::layout_epoch`]).
     layout_epoch: u64,
+    /// Keyframes erased so far per session ([`Index::session_erasures`]);
+    /// an entry is kept once made, so that the count never repeats.
+    erasures: HashMap<SessionKey, u64>,
     /// Changes to the rows so far: a planned grouping applies only to the
     /// index it was planned on.
     changes: u64,
@@ -219,6 +222,7 @@ impl Index {
             grouped: 0,
             displaced: Vec::new(),
             layout_epoch: 0,
+            erasures: HashMap::new(),
             changes: 0,
         }
     }
@@ -464,7 +468,21 @@ impl Index {
         if self.verdicts.forget(key) > 0 {
             self.forget_operating_point();
         }
-        self.remove_row(key)
+        let removed = self.remove_row(key);
+        if removed {
+            *self.erasures.entry(key.session()).or_insert(0) += 1;
+        }
+        removed
+    }
+
+    /// How many of `session`'s keyframes this index has erased since it
+    /// was made (a replaced keyframe is not erased). It changes with every
+    /// erasure, whether it came through this server or, in cluster mode,
+    /// through another replica's write: perception names a session's
+    /// camera stream with it, so that a read made before an erasure is
+    /// not carried over to the keyframes after it.
+    pub fn session_erasures(&self, session: &SessionKey) -> u64 {
+        self.erasures.get(session).copied().unwrap_or(0)
     }
 
     /// The stored verdicts.
@@ -904,6 +922,26 @@ mod tests {
         }
         let tracked: usize = index.tracks.values().map(|t| t.len()).sum();
         assert_eq!(tracked, index.rows.len());
+    }
+
+    #[test]
+    fn erasures_are_counted_per_session_and_replacements_are_not() {
+        let mut index = Index::new(0);
+        let session = |name: &str| kf_of("r", name, 0, 0).key.session();
+        index.upsert(kf("s", 1, 0, "a"));
+        index.upsert(kf("s", 2, 0, "b"));
+        index.upsert(kf("t", 1, 0, "c"));
+        // A replaced keyframe is the same keyframe: no erasure.
+        index.upsert(kf("s", 1, 0, "a2"));
+        assert_eq!(index.session_erasures(&session("s")), 0);
+        assert!(index.remove(&kf("s", 1, 0, "").key));
+        assert!(!index.remove(&kf("s", 1, 0, "").key), "already gone");
+        assert!(index.remove(&kf("s", 2, 0, "").key));
+        assert_eq!(index.session_erasures(&session("s")), 2);
+        assert_eq!(index.session_erasures(&session("t")), 0);
+        // The count outlives the session's keyframes, so it never repeats.
+        index.upsert(kf("s", 3, 0, "d"));
+        assert_eq!(index.session_erasures(&session("s")), 2);
     }
 
     #[test]

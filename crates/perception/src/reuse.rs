@@ -20,8 +20,10 @@
 //!
 //! A stream is what the caller names one (the service: a robot's session);
 //! the last read of at most [`ReuseConfig::max_sessions`] streams is kept,
-//! the least recently used forgotten first, and the service forgets a
-//! session's read when keyframes of it are erased. Nothing here is stored:
+//! the least recently used forgotten first. The service names a new stream
+//! for a session once keyframes of it are erased (on any replica), and
+//! forgets the old stream's read when the erasure came through it. Nothing
+//! here is stored:
 //! a restarted service reads the next keyframe of every stream afresh.
 
 use serde::{Deserialize, Serialize};

@@ -24,7 +24,7 @@ use std::sync::Arc;
 use std::time::Duration;
 
 use humem_cluster::{ClusterError, Replica};
-use humem_core::keyframe::{Features, SemanticKeyframe};
+use humem_core::keyframe::{Features, SemanticKeyframe, SessionKey};
 use humem_core::vpr::VprParams;
 use humem_perception::{Perception, PerceptionError};
 use humem_store::{Mutation, MutationOutcome, Store, StoreError};
@@ -169,15 +169,30 @@ impl Pipeline {
         }
     }
 
+    /// [`stream_name`] with how many of the session's keyframes the store
+    /// has erased ([`humem_core::index::Index::session_erasures`]): an
+    /// erasure through any replica starts a new stream, so a read made
+    /// before it is never carried over to the keyframes after it.
+    fn camera_stream(&self, robot_id: &str, session_id: &str) -> Option<String> {
+        let name = stream_name(robot_id, session_id)?;
+        let session = SessionKey {
+            robot_id: robot_id.into(),
+            session_id: session_id.into(),
+        };
+        let erasures = self.store.index().session_erasures(&session);
+        Some(format!("{name}\u{1f}{erasures}"))
+    }
+
     async fn write(&self, mutation: Mutation) -> Result<Stored, PipelineError> {
-        // Keyframes of a session going away: its last read must not carry
-        // their text into the session's next keyframes.
+        // Keyframes of a session going away: the erasure count in its
+        // stream's name keeps its last read from being carried into its
+        // next keyframes (on every replica); this frees it at once.
         let erased = match &mutation {
             Mutation::Erase { session, .. } | Mutation::ResetSession(session) => Some(session),
             Mutation::ResetMap(map) => Some(&map.session),
             _ => None,
         };
-        let stream = erased.and_then(|s| stream_name(&s.robot_id, &s.session_id));
+        let stream = erased.and_then(|s| self.camera_stream(&s.robot_id, &s.session_id));
         if let (Some(stream), Some(perception)) = (stream, &self.perception) {
             perception.forget_stream(&stream);
         }
@@ -294,7 +309,7 @@ impl Pipeline {
         };
         let mut perception_timings = Vec::new();
         if let Some(observation) = spec.observation.take() {
-            let stream = stream_name(&spec.session.robot_id, &spec.session.session_id);
+            let stream = self.camera_stream(&spec.session.robot_id, &spec.session.session_id);
             let (features, timings) = self.resolve(observation, stream.as_deref()).await?;
             spec.observation = Some(Observation::Features(features));
             perception_timings = timings;
@@ -374,7 +389,8 @@ impl Pipeline {
                 &mut p.observation,
                 Observation::Features(Features::default()),
             );
-            observations.push((observation, stream_name(&p.key.robot_id, &p.key.session_id)));
+            let stream = self.camera_stream(&p.key.robot_id, &p.key.session_id);
+            observations.push((observation, stream));
             metas.push(p);
         }
         let resolved = futures::future::join_all(
