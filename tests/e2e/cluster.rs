@@ -473,13 +473,7 @@ async fn nats_connections_use_tls_and_credentials() {
         [1, 3, 0],
         scenes::features(world.view(0, 0.1), 0, vec![]),
     );
-    let reply = server
-        .client()
-        .await
-        .insert(proto::InsertRequest { keyframe: Some(kf) })
-        .await
-        .unwrap()
-        .into_inner();
+    let reply = insert_reply(&server, kf).await;
     assert_eq!(reply.log_sequence, 1);
     drop(server);
 
@@ -606,13 +600,7 @@ async fn a_reset_through_another_replica_ends_the_read_a_session_carries() {
         let a = &a;
         async move {
             let kf = crate::images::keyframe("r", id, crate::images::image(board));
-            let reply = a
-                .client()
-                .await
-                .insert(proto::InsertRequest { keyframe: Some(kf) })
-                .await
-                .unwrap()
-                .into_inner();
+            let reply = insert_reply(a, kf).await;
             reply.timings.iter().any(|t| t.stage == "ocr_det")
         }
     };
@@ -725,16 +713,18 @@ async fn a_keyframe_quota_holds_when_three_replicas_take_writes_at_once() {
 
 /// Inserts one keyframe through `server`; returns its log position.
 async fn insert_one(server: &Server, kf: &proto::Keyframe) -> u64 {
+    insert_reply(server, kf.clone()).await.log_sequence
+}
+
+/// Inserts `kf` through `server`; its reply.
+async fn insert_reply(server: &Server, kf: proto::Keyframe) -> proto::InsertResponse {
     server
         .client()
         .await
-        .insert(proto::InsertRequest {
-            keyframe: Some(kf.clone()),
-        })
+        .insert(proto::InsertRequest { keyframe: Some(kf) })
         .await
         .unwrap()
         .into_inner()
-        .log_sequence
 }
 
 /// The log position of the newest store snapshot in `nats`'s bucket.

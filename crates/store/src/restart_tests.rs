@@ -376,6 +376,20 @@ fn fleet_keyframe(robot: usize, id: u64) -> SemanticKeyframe {
     kf(&format!("robot-{robot}"), "s", id, u64::from(id >= 700))
 }
 
+/// Opens the store in `dir` again: it loads from its snapshot, holds
+/// `keyframes`, and holds what a rebuild from the tree holds.
+fn reopens_from_its_snapshot_as_the_tree(dir: &Path, keyframes: usize) {
+    let store = open_manual(dir);
+    assert!(matches!(
+        store.opened().source,
+        IndexSource::Snapshot { .. }
+    ));
+    let loaded = contents(&store);
+    assert_eq!(loaded.len(), keyframes);
+    drop(store);
+    assert_eq!(loaded, rebuilt_from_tree(dir));
+}
+
 #[tokio::test]
 async fn the_writer_groups_a_fleets_newest_rows_by_map_and_a_reopen_finds_the_same_store() {
     use humem_core::index::GROUP_TAIL_ROWS;
@@ -412,15 +426,7 @@ async fn the_writer_groups_a_fleets_newest_rows_by_map_and_a_reopen_finds_the_sa
         }
         assert!(store.snapshot().unwrap().is_some());
     }
-    let store = open_manual(dir.path());
-    assert!(matches!(
-        store.opened().source,
-        IndexSource::Snapshot { .. }
-    ));
-    let loaded = contents(&store);
-    assert_eq!(loaded.len(), robots * per_robot as usize);
-    drop(store);
-    assert_eq!(loaded, rebuilt_from_tree(dir.path()));
+    reopens_from_its_snapshot_as_the_tree(dir.path(), robots * per_robot as usize);
 }
 
 #[tokio::test]
@@ -504,13 +510,8 @@ async fn the_writer_sorts_again_rows_scattered_by_erasures_and_a_reopen_finds_th
         assert!(runs_of_map_0(&store) <= 25, "{}", runs_of_map_0(&store));
         assert!(store.snapshot().unwrap().is_some());
     }
-    let store = open_manual(dir.path());
-    assert!(matches!(
-        store.opened().source,
-        IndexSource::Snapshot { .. }
-    ));
-    let loaded = contents(&store);
-    assert_eq!(loaded.len(), robots * per_robot as usize - erased as usize);
-    drop(store);
-    assert_eq!(loaded, rebuilt_from_tree(dir.path()));
+    reopens_from_its_snapshot_as_the_tree(
+        dir.path(),
+        robots * per_robot as usize - erased as usize,
+    );
 }
