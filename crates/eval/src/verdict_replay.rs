@@ -158,6 +158,27 @@ pub struct ReplayRow {
     pub candidates: usize,
     /// Verdicts that were rejections of true places (geometry's misses).
     pub wrong_rejections: usize,
+    /// The false alarms themselves, in stream order: which queries without
+    /// a true place were answered, and by what.
+    pub false_alarm_list: Vec<FalseAlarm>,
+}
+
+/// One query without a true place that was answered: what to look at
+/// when a replay's false alarms are too many (a look-alike place, a near
+/// miss just outside the truth's radius, a view across a junction).
+#[derive(Debug, Clone, PartialEq, Serialize)]
+pub struct FalseAlarm {
+    /// The query's frame index.
+    pub query: usize,
+    /// Its top candidate's frame index (a reference's, in a pairs set).
+    pub candidate: u64,
+    /// The candidate's score.
+    pub score: f32,
+    /// The threshold it was above.
+    pub threshold: f32,
+    /// Distance between the two stored positions: metres where the data
+    /// set has poses, the stand-in line's otherwise.
+    pub distance: f64,
 }
 
 /// A keyframe of the stream: as the evaluation stores one, at `pose`.
@@ -474,10 +495,23 @@ pub(crate) async fn replay_pass<S: ReplayStream>(
         let ranked = asked.ranked;
         let matches = dataset.matches.get(&q);
         let is_true = |id: u64| matches.is_some_and(|m| m.contains(&(id as usize)));
+        let has_match = matches.is_some_and(|m| !m.is_empty());
         let group = groups.entry(visit_of(matches, gap)).or_default();
+        if let Some(&(candidate, score)) = ranked.first().filter(|&&(_, s)| s > threshold) {
+            if !has_match {
+                let at = |poses: &[Pose], i: u64| poses[i as usize].translation;
+                group.false_alarms.push(FalseAlarm {
+                    query: q,
+                    candidate,
+                    score,
+                    threshold,
+                    distance: distance(at(query_poses, q as u64), at(reference_poses, candidate)),
+                });
+            }
+        }
         group.scored.push(ScoredQuery {
             ranked: ranked.iter().map(|&(id, s)| (s, is_true(id))).collect(),
-            has_match: matches.is_some_and(|m| !m.is_empty()),
+            has_match,
             threshold: Some(threshold),
         });
         if let Some(m) = matches.filter(|m| !m.is_empty()) {
@@ -512,7 +546,9 @@ pub(crate) async fn replay_pass<S: ReplayStream>(
         all.scored.extend(group.scored.iter().cloned());
         all.answers.extend(group.answers.iter().cloned());
         all.wrong_rejections += group.wrong_rejections;
+        all.false_alarms.extend(group.false_alarms.iter().cloned());
     }
+    all.false_alarms.sort_by_key(|f| f.query);
     rows.push(all.row(pass, "all", point));
     Ok(rows)
 }
@@ -523,6 +559,16 @@ struct Group {
     scored: Vec<ScoredQuery>,
     answers: Vec<(Vec<usize>, Vec<usize>)>,
     wrong_rejections: usize,
+    false_alarms: Vec<FalseAlarm>,
+}
+
+/// Euclidean distance between two positions.
+fn distance(a: [f64; 3], b: [f64; 3]) -> f64 {
+    a.iter()
+        .zip(&b)
+        .map(|(x, y)| (x - y).powi(2))
+        .sum::<f64>()
+        .sqrt()
 }
 
 impl Group {
@@ -541,6 +587,7 @@ impl Group {
             candidate_precision: p.candidate_precision,
             candidates: p.candidates,
             wrong_rejections: self.wrong_rejections,
+            false_alarm_list: self.false_alarms.clone(),
         }
     }
 }
@@ -566,12 +613,159 @@ pub fn table(rows: &[ReplayRow]) -> String {
             r.wrong_rejections
         ));
     }
+    let listed: Vec<String> = rows
+        .iter()
+        .filter(|r| r.visit == "all" && !r.false_alarm_list.is_empty())
+        .map(|r| format!("- {}: {}\n", r.pass, false_alarm_line(&r.false_alarm_list)))
+        .collect();
+    if !listed.is_empty() {
+        out.push_str(
+            "\nFalse alarms (query frame → its top candidate: score, distance between them):\n",
+        );
+        out.extend(listed);
+    }
     out
+}
+
+/// `191 → 40: 0.371, 47.7 m; …`.
+fn false_alarm_line(alarms: &[FalseAlarm]) -> String {
+    alarms
+        .iter()
+        .map(|f| {
+            format!(
+                "{} → {}: {:.3}, {:.1} m",
+                f.query, f.candidate, f.score, f.distance
+            )
+        })
+        .collect::<Vec<_>>()
+        .join("; ")
 }
 
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// A stream whose answers are written out by the test, and which keeps
+    /// what it was told: the accounting of [`replay_pass`] on its own.
+    #[derive(Default)]
+    struct Scripted {
+        answers: BTreeMap<usize, Vec<(u64, f32)>>,
+        stored: Vec<(String, usize)>,
+        reported: Vec<(usize, u64, bool)>,
+    }
+
+    impl ReplayStream for Scripted {
+        async fn store(&mut self, robot: &str, index: usize, _: Pose) -> anyhow::Result<()> {
+            self.stored.push((robot.into(), index));
+            Ok(())
+        }
+
+        async fn ask(&mut self, q: usize, _: bool, _: usize) -> anyhow::Result<Asked> {
+            Ok(Asked {
+                ranked: self.answers.get(&q).cloned().unwrap_or_default(),
+                threshold: 0.36,
+            })
+        }
+
+        async fn report(
+            &mut self,
+            q: usize,
+            _: &str,
+            candidate: u64,
+            accepted: bool,
+            _: f32,
+        ) -> anyhow::Result<()> {
+            self.reported.push((q, candidate, accepted));
+            Ok(())
+        }
+    }
+
+    /// Six frames along x, 1 m apart, a frame gap of 2. Frame 4 revisits
+    /// frame 0; frames 2, 3 and 5 have no true place. Frame 3 is answered
+    /// by frame 0 above the threshold (a false alarm, 3 m away), frame 2
+    /// only below it, frame 5 by frame 1 (another false alarm, 4 m).
+    #[tokio::test]
+    async fn a_pass_counts_and_lists_the_false_alarms_and_reports_every_candidate_sent() {
+        let dataset = Dataset {
+            name: "scripted".into(),
+            kind: Kind::Loop,
+            queries: Vec::new(),
+            references: Vec::new(),
+            matches: BTreeMap::from([(4, vec![0])]),
+            min_frame_gap: 2,
+            truth_source: "test".into(),
+        };
+        let poses: Vec<Pose> = (0..6)
+            .map(|i| Pose {
+                translation: [i as f64, 0.0, 0.0],
+                ..Pose::default()
+            })
+            .collect();
+        let mut stream = Scripted {
+            answers: BTreeMap::from([
+                (2, vec![(0, 0.30)]),
+                (3, vec![(0, 0.50), (1, 0.40)]),
+                (4, vec![(0, 0.70), (1, 0.20)]),
+                (5, vec![(1, 0.37)]),
+            ]),
+            ..Scripted::default()
+        };
+        let point = OperatingPoint {
+            threshold: 0.36,
+            max_candidates: 5,
+        };
+        let options = ReplayOptions {
+            wrong_rejections: 0.0,
+            seed: 1,
+            pose_scale: 1.0,
+        };
+        let rows = replay_pass(
+            &mut stream,
+            "with verdicts",
+            &dataset,
+            &(poses.clone(), poses),
+            point,
+            options,
+            true,
+        )
+        .await
+        .unwrap();
+        assert_eq!(stream.stored.len(), 6, "every frame is stored");
+        // Sent: 3 → 0 and 3 → 1 (both above 0.36), 4 → 0, 5 → 1.
+        assert_eq!(
+            stream.reported,
+            vec![(3, 0, false), (3, 1, false), (4, 0, true), (5, 1, false)]
+        );
+        let first = rows.iter().find(|r| r.visit == "1").unwrap();
+        assert_eq!((first.queries, first.false_alarms), (3, 2));
+        let all = rows.iter().find(|r| r.visit == "all").unwrap();
+        assert_eq!(all.candidates, 4);
+        assert_eq!(all.recall_at_threshold, 1.0);
+        assert_eq!(
+            all.false_alarm_list,
+            vec![
+                FalseAlarm {
+                    query: 3,
+                    candidate: 0,
+                    score: 0.50,
+                    threshold: 0.36,
+                    distance: 3.0,
+                },
+                FalseAlarm {
+                    query: 5,
+                    candidate: 1,
+                    score: 0.37,
+                    threshold: 0.36,
+                    distance: 4.0,
+                },
+            ]
+        );
+        let printed = table(&rows);
+        assert!(
+            printed.contains("- with verdicts: 3 → 0: 0.500, 3.0 m; 5 → 1: 0.370, 4.0 m"),
+            "{printed}"
+        );
+    }
 
     #[test]
     fn visits_count_the_earlier_passes() {
