@@ -192,6 +192,7 @@ fn run_scanning(
         eligible: eligible_count,
     } = vpr::rank_timed(params, spec.layers, &query, index, &eligible);
     let clock = std::time::Instant::now();
+    leave_out_turned_away(index, params, stored_row, &mut ranked);
     let now = humem_core::verdict::unix_now();
     apply_verdicts(index, params, stored_row, &mut ranked, now);
     let operating_point = index.operating_point(params, now);
@@ -212,6 +213,33 @@ fn run_scanning(
         threshold,
         operating_point,
     })
+}
+
+/// Leaves out the candidates of the query's own map whose camera is
+/// turned further from the query's than `vpr.max_view_change_deg`
+/// ([`vpr::viewpoint`]); a query without a stored keyframe keeps them all.
+pub fn leave_out_turned_away(
+    index: &Index,
+    params: &VprParams,
+    stored_row: Option<usize>,
+    ranked: &mut Vec<vpr::RankedCandidate>,
+) {
+    let Some(query) = stored_row.map(|row| index.meta(row)) else {
+        return;
+    };
+    if params.max_view_change_deg >= vpr::viewpoint::OFF_DEG {
+        return;
+    }
+    let map = query.map_key();
+    ranked.retain(|r| {
+        let candidate = index.meta(r.row);
+        candidate.map_key() != map
+            || !vpr::viewpoint::turned_away(
+                params.max_view_change_deg,
+                &query.pose,
+                &candidate.pose,
+            )
+    });
 }
 
 /// Changes the ranked candidates' scores by SLAM's stored verdicts
@@ -526,6 +554,98 @@ mod tests {
             });
         }
         index
+    }
+
+    /// A keyframe of session "s" looking along `yaw_deg` (about the map's
+    /// z axis), with one descriptor for all, so that only the viewpoint
+    /// rule tells them apart.
+    fn looking(id: u64, map_id: u64, yaw_deg: f64) -> SemanticKeyframe {
+        let h = yaw_deg.to_radians() / 2.0;
+        SemanticKeyframe {
+            key: SessionKey {
+                robot_id: "r".into(),
+                session_id: "s".into(),
+            }
+            .keyframe(id),
+            frame_id: id,
+            timestamp: id as f64,
+            map_id,
+            pose: Pose {
+                translation: [id as f64, 0.0, 0.0],
+                rotation: [h.cos(), 0.0, 0.0, h.sin()],
+            },
+            features: Features {
+                descriptor: vec![0.5; 4],
+                ..Features::default()
+            },
+        }
+    }
+
+    /// The ids every stored keyframe of `index` is answered with for
+    /// keyframe 100, over every map, at threshold 0.
+    fn answered(index: &Index, params: &VprParams) -> Vec<u64> {
+        let spec = QuerySpec {
+            session: SessionKey {
+                robot_id: "r".into(),
+                session_id: "s".into(),
+            },
+            map_id: None,
+            frame_id: None,
+            keyframe_id: Some(100),
+            observation: None,
+            predecessor_ids: Vec::new(),
+            scope: Scope::AllMaps,
+            readable_robots: None,
+            min_frame_gap: 10,
+            top_n: 50,
+            threshold: Some(0.0),
+            layers: vpr::Layers::FULL,
+            kind: super::super::request::QueryKind::LoopClosure,
+        };
+        let mut ids: Vec<u64> = run(index, params, &spec)
+            .unwrap()
+            .candidates
+            .iter()
+            .map(|c| c.key.keyframe_id)
+            .collect();
+        ids.sort_unstable();
+        ids
+    }
+
+    /// Keyframe 100 looks along 0°. In its map: 0 at 90° (left out), 1 at
+    /// 59° and 2 at −30° (kept), 3 at 180° (left out); in map 1: 4 at 90°
+    /// (kept: another map's frame says nothing about this one's). Twenty
+    /// more keyframes at 0° give the null its samples.
+    #[test]
+    fn candidates_of_the_query_map_turned_away_from_it_are_left_out() {
+        let mut index = Index::new(4);
+        for (id, map, yaw) in [
+            (0, 0, 90.0),
+            (1, 0, 59.0),
+            (2, 0, -30.0),
+            (3, 0, 180.0),
+            (4, 1, 90.0),
+        ] {
+            index.upsert(looking(id, map, yaw));
+        }
+        for id in 10..30 {
+            index.upsert(looking(id, 0, 0.0));
+        }
+        index.upsert(looking(100, 0, 0.0));
+        let params = VprParams::default();
+        let kept = answered(&index, &params);
+        assert!(!kept.contains(&0) && !kept.contains(&3), "{kept:?}");
+        assert!(
+            kept.contains(&1) && kept.contains(&2) && kept.contains(&4),
+            "{kept:?}"
+        );
+        let off = VprParams {
+            max_view_change_deg: vpr::viewpoint::OFF_DEG,
+            ..VprParams::default()
+        };
+        let all = answered(&index, &off);
+        assert!(all.contains(&0) && all.contains(&3), "{all:?}");
+        assert_eq!(all.len(), kept.len() + 2);
     }
 
     /// Without the place graph, the verdicts near the query's place are

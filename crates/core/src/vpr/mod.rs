@@ -49,6 +49,7 @@ pub mod row_file;
 pub mod scal;
 pub mod scan;
 pub mod text;
+pub mod viewpoint;
 
 #[cfg(test)]
 pub(crate) mod testing;

@@ -80,6 +80,11 @@ pub struct VprParams {
     pub absence_min_area: f32,
     /// Maximum number of selected candidates.
     pub max_candidates: usize,
+    /// Largest rotation, in degrees, between the camera of a query and
+    /// that of a candidate of its own map ([`super::viewpoint`]): one
+    /// turned further away cannot show the same place to a perspective
+    /// camera and is left out. 180: off (fisheye and 360° cameras).
+    pub max_view_change_deg: f64,
     /// `ω_r`, importance of semantic class `r` in `S_o`.
     pub class_weights: BTreeMap<String, f32>,
     /// `ω_r` of classes not listed in `class_weights`.
@@ -166,6 +171,7 @@ impl Default for VprParams {
             g_xo: 0.5,
             absence_min_area: 0.01,
             max_candidates: 5,
+            max_view_change_deg: 60.0,
             class_weights: BTreeMap::new(),
             default_class_weight: 1.0,
             generic_words: GENERIC_WORDS.iter().map(|w| w.to_string()).collect(),
@@ -248,6 +254,9 @@ impl VprParams {
         finite_in("absence_min_area", self.absence_min_area, 0.0, 1.0)?;
         if self.max_candidates == 0 {
             return Err("max_candidates must be >= 1".to_string());
+        }
+        if !(self.max_view_change_deg > 0.0 && self.max_view_change_deg <= 180.0) {
+            return Err("max_view_change_deg must be in (0, 180]".to_string());
         }
         for (class, w) in &self.class_weights {
             non_negative(&format!("class_weights[{class}]"), *w)?;
@@ -383,6 +392,10 @@ mod tests {
             ("g_xo", Box::new(|p| p.g_xo = f32::INFINITY)),
             ("absence_min_area", Box::new(|p| p.absence_min_area = 2.0)),
             ("max_candidates", Box::new(|p| p.max_candidates = 0)),
+            (
+                "max_view_change_deg",
+                Box::new(|p| p.max_view_change_deg = f64::NAN),
+            ),
             (
                 "class_weights[sign]",
                 Box::new(|p| {
