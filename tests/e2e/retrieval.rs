@@ -409,3 +409,65 @@ async fn a_generic_sign_where_a_distinctive_one_should_be_speaks_against() {
         "{without_sign} vs {supported_only}"
     );
 }
+
+/// `kf` with its camera turned by `yaw_deg` about the map's z axis.
+fn turned(mut kf: proto::Keyframe, yaw_deg: f64) -> proto::Keyframe {
+    let h = yaw_deg.to_radians() / 2.0;
+    kf.pose.as_mut().unwrap().rotation = Some(proto::Quaternion {
+        w: h.cos(),
+        x: 0.0,
+        y: 0.0,
+        z: h.sin(),
+    });
+    kf
+}
+
+/// The place of a loop query seen again in its own map with the camera
+/// turned 90° (a view across a junction: left out), turned 20° (kept),
+/// and turned 90° in another map (kept: the maps' frames are unrelated);
+/// with `vpr.max_view_change_deg = 180` nothing is left out.
+#[tokio::test(flavor = "multi_thread")]
+async fn a_loop_query_leaves_out_views_of_its_map_turned_away_from_it() {
+    let mut world = World::new(40, 5);
+    let place = world.view(0, 0.0);
+    let mut keyframes = other_places(&mut world);
+    keyframes.push(turned(look_alike(&place, 1, vec![]), 90.0));
+    keyframes.push(turned(look_alike(&place, 2, vec![]), 20.0));
+    keyframes.push(turned(
+        scenes::keyframe(
+            "r",
+            "s",
+            [40, 8_000, 1],
+            scenes::features(place.clone(), 0, vec![]),
+        ),
+        90.0,
+    ));
+    keyframes.push(look_alike(&place, 300, vec![]));
+
+    for (env, left_out) in [
+        (&[][..], true),
+        (&["HUMEM_VPR__MAX_VIEW_CHANGE_DEG=180"][..], false),
+    ] {
+        let dir = tempfile::tempdir().unwrap();
+        let server = Server::start_with(dir.path(), env);
+        let mut client = server.client().await;
+        insert_all(&mut client, keyframes.clone()).await;
+        let mut query = query_stored("r", "s", 300);
+        query.scope = proto::Scope::AllMaps as i32;
+        query.threshold = Some(0.0);
+        query.top_n = Some(50);
+        let reply = client.query(query).await.unwrap().into_inner();
+        let ids: Vec<u64> = reply.candidates.iter().map(|c| c.keyframe_id).collect();
+        assert!(ids.contains(&2) && ids.contains(&40), "{env:?}: {ids:?}");
+        assert_eq!(ids.contains(&1), !left_out, "{env:?}: {ids:?}");
+        if !left_out {
+            assert_eq!(
+                &ids[..3]
+                    .iter()
+                    .copied()
+                    .collect::<std::collections::BTreeSet<_>>(),
+                &[1, 2, 40].into()
+            );
+        }
+    }
+}
