@@ -70,6 +70,14 @@ impl RowMeta {
             map_id: self.map_id,
         }
     }
+
+    /// Whether `other` is in the same map (robot, session and map id),
+    /// without building either's [`MapKey`].
+    pub fn same_map(&self, other: &RowMeta) -> bool {
+        self.map_id == other.map_id
+            && self.key.robot_id == other.key.robot_id
+            && self.key.session_id == other.key.session_id
+    }
 }
 
 /// Why [`IndexRestore`] could not rebuild an index.

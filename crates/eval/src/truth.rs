@@ -311,15 +311,9 @@ pub fn load_kitti(path: &Path) -> Result<Vec<Pose>, TruthError> {
     parse_kitti(&text).map_err(|e| e.in_file(path))
 }
 
-/// Geodesic angle between two orientations: the rotation angle of `a⁻¹b`,
-/// in degrees, in `[0, 180]`. `q` and `−q` are the same rotation.
-pub fn geodesic_deg(a: &UnitQuaternion<f64>, b: &UnitQuaternion<f64>) -> f64 {
-    let d = a.inverse() * b;
-    // 2·atan2(|v|, |w|) is accurate at small angles, where 2·acos(|w|) loses
-    // digits; |w| folds q and −q together and keeps the angle ≤ 180°.
-    let angle = 2.0 * d.imag().norm().atan2(d.scalar().abs());
-    angle.to_degrees().clamp(0.0, 180.0)
-}
+/// Geodesic angle between two orientations, in degrees (the service's own
+/// rule for views turned away uses the same function).
+pub use humem_core::vpr::viewpoint::geodesic_deg;
 
 /// The paper's thresholds for a valid match.
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]

@@ -44,6 +44,7 @@ use humem_core::index::Index;
 use humem_core::keyframe::{Features, Pose, SemanticKeyframe, SessionKey};
 use humem_core::synthetic::Rng;
 use humem_core::verdict::{Verdict, VerificationKind};
+use humem_core::vpr::feedback::squared_distance;
 use humem_core::vpr::{Layers, Scope, VerdictParams, VprParams};
 use humem_server::pipeline::query;
 use humem_server::pipeline::request::{QueryKind, QuerySpec};
@@ -505,7 +506,11 @@ pub(crate) async fn replay_pass<S: ReplayStream>(
                     candidate,
                     score,
                     threshold,
-                    distance: distance(at(query_poses, q as u64), at(reference_poses, candidate)),
+                    distance: squared_distance(
+                        at(query_poses, q as u64),
+                        at(reference_poses, candidate),
+                    )
+                    .sqrt(),
                 });
             }
         }
@@ -560,15 +565,6 @@ struct Group {
     answers: Vec<(Vec<usize>, Vec<usize>)>,
     wrong_rejections: usize,
     false_alarms: Vec<FalseAlarm>,
-}
-
-/// Euclidean distance between two positions.
-fn distance(a: [f64; 3], b: [f64; 3]) -> f64 {
-    a.iter()
-        .zip(&b)
-        .map(|(x, y)| (x - y).powi(2))
-        .sum::<f64>()
-        .sqrt()
 }
 
 impl Group {

@@ -230,10 +230,9 @@ pub fn leave_out_turned_away(
     if params.max_view_change_deg >= vpr::viewpoint::OFF_DEG {
         return;
     }
-    let map = query.map_key();
     ranked.retain(|r| {
         let candidate = index.meta(r.row);
-        candidate.map_key() != map
+        !candidate.same_map(query)
             || !vpr::viewpoint::turned_away(
                 params.max_view_change_deg,
                 &query.pose,

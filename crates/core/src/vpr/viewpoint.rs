@@ -25,34 +25,39 @@
 //! place"; cameras that see all around (fisheye, 360°) set it to 180,
 //! which turns the rule off.
 
+use nalgebra::{Quaternion, UnitQuaternion};
+
 use crate::keyframe::Pose;
 
 /// The rule's setting at which it never leaves anything out.
 pub const OFF_DEG: f64 = 180.0;
 
-/// `θ`, the angle in degrees of the rotation between the orientations of
-/// `a` and `b` (in [0, 180]); quaternions are normalised first, and `q`
-/// and `−q` are the same rotation.
+/// Geodesic angle between two orientations: the rotation angle of `a⁻¹b`,
+/// in degrees, in `[0, 180]`. `q` and `−q` are the same rotation.
+pub fn geodesic_deg(a: &UnitQuaternion<f64>, b: &UnitQuaternion<f64>) -> f64 {
+    let d = a.inverse() * b;
+    // 2·atan2(|v|, |w|) is accurate at small angles, where 2·acos(|w|) loses
+    // digits; |w| folds q and −q together and keeps the angle ≤ 180°.
+    let angle = 2.0 * d.imag().norm().atan2(d.scalar().abs());
+    angle.to_degrees().clamp(0.0, 180.0)
+}
+
+/// `θ`, [`geodesic_deg`] of the orientations of two stored poses;
+/// quaternions are normalised first, and one of zero length (which the
+/// API refuses) counts as no rotation.
 pub fn rotation_angle_deg(a: &Pose, b: &Pose) -> f64 {
-    let norm = |q: &[f64; 4]| q.iter().map(|x| x * x).sum::<f64>().sqrt();
-    let (na, nb) = (norm(&a.rotation), norm(&b.rotation));
-    if na == 0.0 || nb == 0.0 {
-        return 0.0;
+    let unit = |[w, x, y, z]: [f64; 4]| UnitQuaternion::try_new(Quaternion::new(w, x, y, z), 0.0);
+    match (unit(a.rotation), unit(b.rotation)) {
+        (Some(a), Some(b)) => geodesic_deg(&a, &b),
+        _ => 0.0,
     }
-    let dot: f64 = a
-        .rotation
-        .iter()
-        .zip(&b.rotation)
-        .map(|(x, y)| x * y)
-        .sum::<f64>()
-        / (na * nb);
-    2.0 * dot.abs().min(1.0).acos().to_degrees()
 }
 
 /// Whether a candidate at `candidate`, in the same map as a query at
-/// `query`, is turned further from it than `max_deg` allows.
+/// `query`, is turned further from it than `max_deg` allows (never at
+/// [`OFF_DEG`], since no rotation is more than 180°).
 pub fn turned_away(max_deg: f64, query: &Pose, candidate: &Pose) -> bool {
-    max_deg < OFF_DEG && rotation_angle_deg(query, candidate) > max_deg
+    rotation_angle_deg(query, candidate) > max_deg
 }
 
 #[cfg(test)]
