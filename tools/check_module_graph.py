@@ -232,16 +232,30 @@ class Crate:
             if file is None:
                 continue
             code, _ = remove_test_code(strip_comments_and_strings(file.read_text()))
-            # Inline modules are part of their file; `mod x { … }` bodies are read as the file's.
+            # Inline modules (`mod x { … }`) are part of their file: paths in
+            # them resolve from the inline module, and uses among a file's
+            # own modules are not edges.
+            inline = []
+            for m in re.finditer(r"\bmod\s+(\w+)\s*\{", code):
+                inline.append((m.end() - 1, matching_brace(code, m.end() - 1), m.group(1)))
+
+            def scope_at(pos):
+                here = module
+                for start, end, inline_name in sorted(inline):
+                    if start < pos < end:
+                        here = here + (inline_name,)
+                return here
+
+            def add(pos, segments):
+                target = self.resolve(scope_at(pos), segments)
+                if target is not None and target[:len(module)] != module:
+                    graph[module].add(target)
+
             for m in re.finditer(r"\buse\s+([^;]+);", code):
                 for segments in expand_use_tree(m.group(1)):
-                    target = self.resolve(module, segments)
-                    if target is not None and target != module:
-                        graph[module].add(target)
+                    add(m.start(), segments)
             for m in re.finditer(r"(?<![\w:$])((?:crate|super)(?:::\w+)+)", code):
-                target = self.resolve(module, m.group(1).split("::"))
-                if target is not None and target != module:
-                    graph[module].add(target)
+                add(m.start(), m.group(1).split("::"))
         return graph
 
 

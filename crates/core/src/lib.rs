@@ -19,11 +19,14 @@
 //! - [`synthetic`]: fleet-shaped synthetic descriptors for the benchmarks
 //!   and the load generator.
 
+pub mod engine;
 pub mod index;
 #[cfg(test)]
 mod index_scan_tests;
 pub mod keyframe;
+mod numeric;
 pub mod observe;
+pub mod query;
 pub mod row_ids;
 pub mod synthetic;
 pub mod verdict;

@@ -1,7 +1,9 @@
-//! One query, end to end over the index: resolve what the query is (sent
-//! features or a stored keyframe) and its temporal context, decide which
-//! stored keyframes are eligible, rank them with HuMem-VPR and select the
-//! candidates, with their evidence spelled out.
+//! One query over the index, as the service asks it: resolve what the
+//! query is (the features it sent or the stored keyframe it names), its
+//! context and its temporal history; hand that to the core once
+//! ([`humem_core::query::answer`]: eligibility, the scan and the paper's
+//! layers, the rules on top, the selection); and spell out the evidence of
+//! each selected candidate (the classes and strings behind its matches).
 //!
 //! It runs under the index's read lock on a blocking thread; it allocates
 //! only for the query's own history and the returned candidates.
@@ -10,13 +12,19 @@ use std::time::Duration;
 
 use super::request::{InvalidField, Observation, QuerySpec};
 use humem_core::index::Index;
-use humem_core::keyframe::{Features, KeyframeKey, ObjectObservation, Pose, SessionKey};
-use humem_core::vpr::feedback::{self, Place, PlacedVerdict};
-use humem_core::vpr::{
-    self, Contradiction, KeyframeMemory, MissingObject, NullModel, ObjectMatch, OperatingPoint,
-    QueryContext, QueryObservation, ScalHit, Scope, TextConflict, TextMatch, VerdictEffect,
-    VprParams,
-};
+use humem_core::keyframe::{Features, KeyframeKey, ObjectObservation, Pose};
+use humem_core::query::{self, IndexQuery};
+use humem_core::vpr::calibration::NullModel;
+use humem_core::vpr::contradiction::{Contradiction, MissingObject, TextConflict};
+use humem_core::vpr::eligibility::{QueryContext, Scope};
+use humem_core::vpr::feedback::VerdictEffect;
+use humem_core::vpr::memory::KeyframeMemory;
+use humem_core::vpr::ogtl::TextMatch;
+use humem_core::vpr::operating_point::OperatingPoint;
+use humem_core::vpr::osrl::ObjectMatch;
+use humem_core::vpr::params::VprParams;
+use humem_core::vpr::rank::{QueryObservation, RankedCandidate};
+use humem_core::vpr::scal::ScalHit;
 
 /// Why a query cannot be answered.
 #[derive(Debug, thiserror::Error)]
@@ -84,7 +92,7 @@ pub struct Candidate {
     pub map_id: u64,
     /// Its stored camera pose in that map.
     pub pose: Pose,
-    /// The score the threshold applied to (see `vpr::RankedCandidate`).
+    /// The score the threshold applied to (see `humem_core::vpr::rank::RankedCandidate`).
     pub score: f32,
     /// The paper's Λ.
     pub raw_score: f32,
@@ -178,142 +186,34 @@ fn run_scanning(
         .collect();
     let mut history = vec![&current];
     history.extend(predecessors.iter());
-
-    let eligible = index.eligibility(&context);
-    let eligible = if partitioned {
-        eligible
-    } else {
-        eligible.without_partition()
-    };
-    let query = QueryObservation { history };
-    let vpr::Ranking {
-        candidates: mut ranked,
-        times: mut timings,
-        eligible: eligible_count,
-    } = vpr::rank_timed(params, spec.layers, &query, index, &eligible);
-    let clock = std::time::Instant::now();
-    leave_out_turned_away(index, params, stored_row, &mut ranked);
-    let now = humem_core::verdict::unix_now();
-    apply_verdicts(index, params, stored_row, &mut ranked, now);
-    let operating_point = index.operating_point(params, now);
-    let threshold = spec.threshold.unwrap_or(operating_point.threshold);
-    timings.fusion += clock.elapsed();
-    let candidates = vpr::select(ranked, threshold, spec.top_n)
-        .into_iter()
-        .map(|r| candidate(index, &current, r))
-        .collect();
+    let answer = query::answer(
+        index,
+        params,
+        &IndexQuery {
+            observation: QueryObservation { history },
+            context,
+            layers: spec.layers,
+            stored_row,
+            threshold: spec.threshold,
+            top_n: spec.top_n,
+            partitioned,
+        },
+    );
     Ok(QueryOutcome {
-        candidates,
-        eligible: eligible_count as u64,
+        candidates: answer
+            .candidates
+            .into_iter()
+            .map(|r| candidate(index, &current, r))
+            .collect(),
+        eligible: answer.eligible as u64,
         used_predecessors: predecessor_rows
             .iter()
             .map(|&row| index.meta(row).key.keyframe_id)
             .collect(),
-        timings: timings.stages().to_vec(),
-        threshold,
-        operating_point,
+        timings: answer.times.stages().to_vec(),
+        threshold: answer.threshold,
+        operating_point: answer.operating_point,
     })
-}
-
-/// Leaves out the candidates of the query's own map whose camera is
-/// turned further from the query's than `vpr.max_view_change_deg`
-/// ([`vpr::viewpoint`]); a query without a stored keyframe keeps them all.
-pub fn leave_out_turned_away(
-    index: &Index,
-    params: &VprParams,
-    stored_row: Option<usize>,
-    ranked: &mut Vec<vpr::RankedCandidate>,
-) {
-    let Some(query) = stored_row.map(|row| index.meta(row)) else {
-        return;
-    };
-    if params.max_view_change_deg >= vpr::viewpoint::OFF_DEG {
-        return;
-    }
-    ranked.retain(|r| {
-        let candidate = index.meta(r.row);
-        !candidate.same_map(query)
-            || !vpr::viewpoint::turned_away(
-                params.max_view_change_deg,
-                &query.pose,
-                &candidate.pose,
-            )
-    });
-}
-
-/// Changes the ranked candidates' scores by SLAM's stored verdicts
-/// ([`vpr::feedback`]) and puts them back in order. The query's place is
-/// its stored keyframe's, when it is one.
-///
-/// Which verdicts are looked at: for a query with a place and the place
-/// graph off (the default), only a verdict with one end at the query's
-/// place can apply to any of its candidates (the penalty and the own
-/// support link the query's place with a candidate's), so only the
-/// verdicts naming a keyframe near it are fetched ([`Index::keyframes_near`]):
-/// the cost follows the verdicts at this place, not every verdict of a
-/// session that has driven for months. Otherwise (the place graph links
-/// candidates' places with each other), those naming a keyframe of the
-/// query's or a candidate's session.
-pub fn apply_verdicts(
-    index: &Index,
-    params: &VprParams,
-    stored_row: Option<usize>,
-    ranked: &mut [vpr::RankedCandidate],
-    now: f64,
-) {
-    let book = index.verdicts();
-    if !params.verdicts.enabled || book.is_empty() || ranked.is_empty() {
-        return;
-    }
-    let query = stored_row.map(|row| index.place_of_row(row));
-    let candidates: Vec<Place> = ranked.iter().map(|r| index.place_of_row(r.row)).collect();
-    let near_only = query.is_some() && !params.verdicts.place_graph;
-    let placed = placed_verdicts(index, params, query.as_ref(), &candidates, near_only, now);
-    if placed.is_empty() {
-        return;
-    }
-    let mut scores: Vec<f32> = ranked.iter().map(|r| r.score).collect();
-    let effects = feedback::apply(
-        &params.verdicts,
-        query.as_ref(),
-        &candidates,
-        &mut scores,
-        &placed,
-    );
-    for ((r, score), effect) in ranked.iter_mut().zip(scores).zip(effects) {
-        r.score = score;
-        r.verdict = effect;
-    }
-    vpr::sort_ranked(ranked);
-}
-
-/// The verdicts a query looks at, placed: those naming a keyframe near the
-/// query's place (`near_only`, which needs a `query`), or else those naming
-/// a keyframe of the query's or a candidate's session.
-fn placed_verdicts<'a>(
-    index: &'a Index,
-    params: &VprParams,
-    query: Option<&Place>,
-    candidates: &[Place],
-    near_only: bool,
-    now: f64,
-) -> Vec<PlacedVerdict<'a>> {
-    let book = index.verdicts();
-    let looked_at = match query {
-        Some(q) if near_only => book.naming(index.keyframes_near(q, &params.verdicts)),
-        _ => {
-            let sessions: std::collections::BTreeSet<SessionKey> = query
-                .into_iter()
-                .chain(candidates)
-                .map(|p| p.key.session())
-                .collect();
-            book.touching(&sessions)
-        }
-    };
-    looked_at
-        .into_iter()
-        .filter_map(|v| PlacedVerdict::new(v, &params.verdicts, now, |k| index.place(k)))
-        .collect()
 }
 
 /// What the query shows: the features it sent, or else those of the stored
@@ -420,7 +320,7 @@ fn predecessor_rows(
 
 /// A selected candidate with its evidence spelled out: the classes and
 /// strings behind every matched, conflicting or missing object.
-fn candidate(index: &Index, current: &Features, r: vpr::RankedCandidate) -> Candidate {
+fn candidate(index: &Index, current: &Features, r: RankedCandidate) -> Candidate {
     let meta = index.meta(r.row);
     let cand_objects = index.objects(r.row);
     let text_conflicts = r
@@ -501,59 +401,7 @@ fn text_of(objects: &[ObjectObservation], object: usize, text: usize) -> String 
 #[cfg(test)]
 mod tests {
     use super::*;
-    use humem_core::keyframe::{Features, SemanticKeyframe};
-    use humem_core::synthetic::Rng;
-    use humem_core::verdict::{Verdict, VerificationKind};
-
-    /// Two sessions driving laps of a 60 m line (two maps in the first),
-    /// and a thousand verdicts on random pairs of them.
-    fn index_with_verdicts() -> Index {
-        let mut index = Index::new(4);
-        let key = |session: &str, id: u64| {
-            SessionKey {
-                robot_id: "r".into(),
-                session_id: session.into(),
-            }
-            .keyframe(id)
-        };
-        let mut keys = Vec::new();
-        for (session, n) in [("a", 240u64), ("b", 120)] {
-            for id in 0..n {
-                let k = key(session, id);
-                index.upsert(SemanticKeyframe {
-                    key: k.clone(),
-                    frame_id: id,
-                    timestamp: id as f64,
-                    map_id: u64::from(session == "a" && id >= 200),
-                    pose: Pose {
-                        translation: [(id % 60) as f64, 0.0, 0.0],
-                        ..Pose::default()
-                    },
-                    features: Features {
-                        descriptor: vec![0.5; 4],
-                        ..Features::default()
-                    },
-                });
-                keys.push(k);
-            }
-        }
-        let mut rng = Rng::new(3);
-        for i in 0..1000 {
-            let q = &keys[rng.next() as usize % keys.len()];
-            let c = &keys[rng.next() as usize % keys.len()];
-            index.record_verdict(Verdict {
-                query: q.clone(),
-                candidate: c.clone(),
-                kind: VerificationKind::Loop,
-                accepted: rng.next().is_multiple_of(3),
-                relative: None,
-                score: Some(0.5),
-                inliers: 0,
-                reported_at: f64::from(i),
-            });
-        }
-        index
-    }
+    use humem_core::keyframe::{Features, SemanticKeyframe, SessionKey};
 
     /// A keyframe of session "s" looking along `yaw_deg` (about the map's
     /// z axis), with one descriptor for all, so that only the viewpoint
@@ -598,7 +446,7 @@ mod tests {
             min_frame_gap: 10,
             top_n: 50,
             threshold: Some(0.0),
-            layers: vpr::Layers::FULL,
+            layers: humem_core::vpr::params::Layers::FULL,
             kind: super::super::request::QueryKind::LoopClosure,
         };
         let mut ids: Vec<u64> = run(index, params, &spec)
@@ -639,52 +487,11 @@ mod tests {
             "{kept:?}"
         );
         let off = VprParams {
-            max_view_change_deg: vpr::viewpoint::OFF_DEG,
+            max_view_change_deg: humem_core::vpr::viewpoint::OFF_DEG,
             ..VprParams::default()
         };
         let all = answered(&index, &off);
         assert!(all.contains(&0) && all.contains(&3), "{all:?}");
         assert_eq!(all.len(), kept.len() + 2);
-    }
-
-    /// Without the place graph, the verdicts near the query's place are
-    /// all that apply: the effects equal those over the sessions' verdicts,
-    /// for every query and a spread of candidates.
-    #[test]
-    fn verdicts_near_the_query_are_all_that_apply() {
-        let index = index_with_verdicts();
-        let params = VprParams::default();
-        let mut rng = Rng::new(9);
-        let mut touched = 0;
-        for q_row in 0..index.len() {
-            let query = index.place_of_row(q_row);
-            let candidates: Vec<Place> = (0..8)
-                .map(|_| index.place_of_row(rng.next() as usize % index.len()))
-                .collect();
-            let effects = |near_only| {
-                let placed =
-                    placed_verdicts(&index, &params, Some(&query), &candidates, near_only, 1e3);
-                let mut scores = vec![0.5f32; candidates.len()];
-                let effects = feedback::apply(
-                    &params.verdicts,
-                    Some(&query),
-                    &candidates,
-                    &mut scores,
-                    &placed,
-                );
-                (effects, scores)
-            };
-            let near = effects(true);
-            assert_eq!(near, effects(false), "query row {q_row}");
-            touched += near
-                .0
-                .iter()
-                .filter(|e| e.rejections + e.acceptances > 0)
-                .count();
-        }
-        assert!(
-            touched > 100,
-            "the verdicts must apply somewhere: {touched}"
-        );
     }
 }

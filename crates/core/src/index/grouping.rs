@@ -44,9 +44,9 @@
 
 use std::collections::HashSet;
 
-use super::{Index, NO_ROW};
+use super::table::{Index, NO_ROW};
+use crate::engine::matrix::MatrixRows;
 use crate::vpr::appearance::AppearanceMatrix;
-use crate::vpr::matrix::MatrixRows;
 
 /// Rows appended since the last grouping from which
 /// [`Index::group_tail_if_due`] groups them.
@@ -359,7 +359,7 @@ mod tests {
         assert_eq!(index.ungrouped_rows(), 0);
         assert_eq!(index.layout_epoch(), 1);
         // The codes moved with their rows: they are those of the rows.
-        let rebuilt = crate::vpr::codes::CodeMatrix::from_rows(
+        let rebuilt = crate::engine::codes::CodeMatrix::from_rows(
             index.dim(),
             &index.matrix.rows(0, index.len()),
         );
@@ -501,7 +501,7 @@ mod tests {
         assert_eq!(runs, 1);
         assert_eq!(index.regroup_window_if_due(), 0, "nothing else is due");
         // The codes moved with their rows.
-        let rebuilt = crate::vpr::codes::CodeMatrix::from_rows(
+        let rebuilt = crate::engine::codes::CodeMatrix::from_rows(
             index.dim(),
             &index.matrix.rows(0, index.len()),
         );

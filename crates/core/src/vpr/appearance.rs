@@ -102,7 +102,7 @@ impl AppearanceMatrix {
             data: if self.data.is_empty() {
                 Vec::new()
             } else {
-                super::gather_rows(&self.data, LEN, order)
+                crate::numeric::gather_rows(&self.data, LEN, order)
             },
             norms: order.iter().map(|&row| self.norms[row]).collect(),
         }
@@ -157,13 +157,13 @@ pub fn similarity((a, a_norm): (&[i8], f32), (b, b_norm): (&[i8], f32)) -> f32 {
     if a_norm <= 0.0 || b_norm <= 0.0 {
         return 0.0;
     }
-    crate::vpr::clip01(idot(a, b) as f32 / (a_norm * b_norm))
+    crate::numeric::clip01(idot(a, b) as f32 / (a_norm * b_norm))
 }
 
 /// `s_e` of one pair: the clipped descriptor cosine, blended with the
 /// thumbnails' similarity when both sides have one and `weight > 0`.
 pub fn fused(dot: f32, appearance: Option<f32>, weight: f32) -> f32 {
-    let cosine = crate::vpr::clip01(dot);
+    let cosine = crate::numeric::clip01(dot);
     match appearance {
         Some(rho) if weight > 0.0 => (1.0 - weight) * cosine + weight * rho,
         _ => cosine,

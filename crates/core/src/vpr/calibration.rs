@@ -33,7 +33,7 @@
 use strength_reduce::StrengthReducedU32;
 
 use crate::keyframe::KeyframeKey;
-use crate::vpr::clip01;
+use crate::numeric::clip01;
 use crate::vpr::params::VprParams;
 
 /// Most scores the median is taken over; larger stores are sampled at an

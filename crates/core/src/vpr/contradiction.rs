@@ -30,7 +30,7 @@
 //!   sign.
 
 use crate::keyframe::ObjectObservation;
-use crate::vpr::clip01;
+use crate::numeric::clip01;
 use crate::vpr::ogtl::TextProfile;
 use crate::vpr::osrl::spatial_kernel;
 use crate::vpr::params::VprParams;

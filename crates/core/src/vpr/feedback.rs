@@ -67,6 +67,7 @@ use serde::{Deserialize, Serialize};
 
 use crate::keyframe::KeyframeKey;
 use crate::verdict::{Verdict, VerificationKind};
+use crate::vpr::operating_point::Rule;
 
 /// How verdicts change rankings (`[vpr.verdicts]`).
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
@@ -177,8 +178,8 @@ impl VerdictParams {
     }
 
     /// The adaptation rule around the configured threshold `base`.
-    pub fn rule(&self, base: f32) -> super::operating_point::Rule {
-        super::operating_point::Rule {
+    pub fn rule(&self, base: f32) -> Rule {
+        Rule {
             base,
             target_precision: self.target_precision,
             geometry_miss_rate: self.geometry_miss_rate,

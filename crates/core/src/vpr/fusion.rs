@@ -10,7 +10,7 @@
 //! `C = 0` gives the paper's formula and `C = 1` leaves only what the
 //! corroboration alone supports.
 
-use crate::vpr::clip01;
+use crate::numeric::clip01;
 use crate::vpr::params::VprParams;
 
 /// `B = clip(g_o S_o + g_t E_t S_t, 0, 1)`.

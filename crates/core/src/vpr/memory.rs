@@ -7,9 +7,9 @@
 //! in-memory index implements it) and lets tests and benchmarks use the plain
 //! [`VecMemory`] below.
 
+use crate::engine::matrix::DescriptorMatrix;
 use crate::keyframe::{Features, ObjectObservation, SceneClass};
 use crate::vpr::appearance::AppearanceMatrix;
-use crate::vpr::matrix::DescriptorMatrix;
 use crate::vpr::text::normalize;
 
 /// Read access to the indexed keyframes, addressed by row.

@@ -1,12 +1,17 @@
-//! HuMem-VPR scoring: ranks stored semantic keyframes against a query.
+//! HuMem-VPR: the paper's scoring layers and the rules on top of them,
+//! which rank stored semantic keyframes against a query.
 //!
 //! Everything here is a pure function over plain data (no I/O, no models, no
-//! server), so the scoring can be unit-tested and benchmarked on its own. The
-//! layers follow the paper and `DESIGN.md`:
+//! server), so the scoring can be unit-tested and benchmarked on its own. It
+//! reads the stored rows through the [`crate::engine`] below it and through
+//! [`memory::KeyframeMemory`], so the in-memory index above it is only one
+//! of the stores it can rank. The layers follow the paper
+//! (`docs/scoring.md` has every formula and constant):
 //!
 //! - [`scal`]: global-descriptor cosine (blended with the [`appearance`]
 //!   thumbnails' similarity), scene modulation and temporal context (the
-//!   scene-primary hypothesis), over the whole eligible store;
+//!   scene-primary hypothesis); [`scan`] is its pass over the whole eligible
+//!   store, exact or on the codes, on every core;
 //! - [`osrl`](mod@osrl): object layout, per-class Hungarian assignment, on the top K;
 //! - [`ogtl`](mod@ogtl): OCR text grounded on spatially compatible objects, on the top K;
 //! - [`contradiction`]: evidence against a candidate, `C` (disagreeing
@@ -14,38 +19,35 @@
 //! - [`calibration`]: the scene score calibrated against the query's null
 //!   distribution, so one threshold serves any descriptor model;
 //! - [`fusion`]: bounded corroboration `B` and the fused score `Λ`;
-//! - [`feedback`]: what SLAM's geometric verdicts do to a ranking (known
-//!   look-alikes lose score, verified places gain it);
-//! - [`rank`](mod@rank): the orchestration of one query and the final selection.
+//! - [`rank`](mod@rank): the orchestration of one query's ranking and the
+//!   final selection.
+//!
+//! The rules on top of the paper: [`feedback`] (what SLAM's geometric
+//! verdicts do to a ranking: known look-alikes lose score, verified places
+//! gain it), [`operating_point`] (the threshold those verdicts estimate),
+//! [`viewpoint`] (views of the query's own map turned away from it).
 //!
 //! Supporting modules: [`params`] (every constant, configurable),
-//! [`eligibility`] (which stored keyframes may be proposed), [`matrix`] (the
-//! contiguous descriptor matrix the scan runs over), [`codes`] (its one-byte
-//! codes with error bounds), [`kernels`] (the SIMD inner loops), [`row_file`] (where the f32
-//! rows go when they leave memory), [`scan`]
-//! (SCAL's pass over the store, exact or on the codes, on every core),
-//! [`memory`] (the view of
-//! the store that ranking needs), [`text`] (string similarity and
+//! [`eligibility`] (which stored keyframes may be proposed), [`memory`] (the
+//! view of the store that ranking needs), [`text`] (string similarity and
 //! distinctiveness) and `assignment` (the Hungarian solver adapter).
+//!
+//! Each item has one public path, its module's (`vpr::rank::select`); the
+//! modules import each other directly, never through this one.
 
 pub mod appearance;
 mod assignment;
 pub mod calibration;
-pub mod codes;
 pub mod contradiction;
 pub mod eligibility;
 pub mod feedback;
-pub mod filter;
 pub mod fusion;
-pub mod kernels;
-pub mod matrix;
 pub mod memory;
 pub mod ogtl;
 pub mod operating_point;
 pub mod osrl;
 pub mod params;
 pub mod rank;
-pub mod row_file;
 pub mod scal;
 pub mod scan;
 pub mod text;
@@ -54,13 +56,17 @@ pub mod viewpoint;
 #[cfg(test)]
 pub(crate) mod testing;
 
+// TEMPORARY-COMPAT (removed before commit of the path change)
+
+pub use crate::engine::filter::RowFilter;
+pub use crate::engine::matrix::{dot, DescriptorMatrix};
+#[doc(hidden)]
+pub use crate::engine::{codes, kernels, matrix, row_file};
 pub use calibration::NullModel;
 pub use contradiction::{Contradiction, MissingObject, TextConflict};
 pub use eligibility::{is_eligible, CandidateMeta, MapRef, QueryContext, Scope};
 pub use feedback::{VerdictEffect, VerdictParams};
-pub use filter::RowFilter;
 pub use fusion::{corroboration, fuse, fuse_with_contradiction};
-pub use matrix::{dot, DescriptorMatrix};
 pub use memory::{KeyframeMemory, VecMemory};
 pub use ogtl::{ogtl, text_profile, text_profile_in, OgtlResult, TextMatch, TextProfile};
 pub use operating_point::OperatingPoint;
@@ -69,27 +75,6 @@ pub use params::{Calibration, Layers, ScanMode, TemporalMode, VprParams};
 pub use rank::{
     rank, rank_timed, select, sort_ranked, QueryObservation, RankedCandidate, Ranking, StageTimes,
 };
-pub use scal::{cosine, modulated, scal_scores, scene_compatibility, ScalHit, ScalQuery};
-pub use scan::{scal_scan, ScalScan};
+pub use scal::{cosine, modulated, scene_compatibility, ScalHit, ScalQuery};
+pub use scan::{scal_scan, scal_scores, ScalScan};
 pub use text::{distinctiveness, string_similarity};
-
-/// `clip(x, 0, 1)`, with NaN mapped to 0 and −0 to +0 so that scores always
-/// order sensibly.
-pub(crate) fn clip01(x: f32) -> f32 {
-    if x > 0.0 {
-        x.min(1.0)
-    } else {
-        0.0
-    }
-}
-
-/// Copies of the rows `order` lists, in that order, from a row-major table
-/// of `stride` values a row: the read-only half of a reordering
-/// (descriptor codes, thumbnails).
-pub(crate) fn gather_rows<T: Copy>(data: &[T], stride: usize, order: &[usize]) -> Vec<T> {
-    let mut gathered = Vec::with_capacity(order.len() * stride);
-    for &row in order {
-        gathered.extend_from_slice(&data[row * stride..(row + 1) * stride]);
-    }
-    gathered
-}

@@ -9,7 +9,7 @@
 //! layer runs on SCAL's top K only.
 
 use crate::keyframe::ObjectObservation;
-use crate::vpr::clip01;
+use crate::numeric::clip01;
 use crate::vpr::memory::KeyframeMemory;
 use crate::vpr::osrl::spatial_kernel;
 use crate::vpr::params::VprParams;

@@ -11,8 +11,8 @@
 use std::collections::BTreeMap;
 
 use crate::keyframe::ObjectObservation;
+use crate::numeric::clip01;
 use crate::vpr::assignment::max_weight_assignment;
-use crate::vpr::clip01;
 use crate::vpr::params::VprParams;
 
 /// `G = exp(−d² / (2σ_m²))` with

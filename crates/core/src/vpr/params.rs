@@ -11,10 +11,23 @@ use std::collections::BTreeMap;
 
 use serde::{Deserialize, Serialize};
 
-pub use super::feedback::VerdictParams;
-pub use super::scan::ScanMode;
+use crate::vpr::feedback::VerdictParams;
 
-/// Tunable constants of the scoring (defaults from the paper and `DESIGN.md`).
+/// Which pass scores the store (`vpr.scan`).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, Serialize, Deserialize)]
+#[serde(rename_all = "lowercase")]
+pub enum ScanMode {
+    /// Compressed from [`COMPRESSED_MIN_ROWS`](crate::vpr::scan::COMPRESSED_MIN_ROWS) stored rows where the CPU
+    /// has a fast code kernel, exact otherwise.
+    #[default]
+    Auto,
+    /// Always the f32 pass.
+    Exact,
+    /// Always the code pass with exact re-scoring (same results).
+    Compressed,
+}
+
+/// Tunable constants of the scoring (defaults from the paper, `docs/scoring.md`).
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(default, deny_unknown_fields)]
 pub struct VprParams {

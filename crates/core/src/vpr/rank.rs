@@ -11,10 +11,11 @@
 use std::cmp::Ordering;
 use std::time::{Duration, Instant};
 
+use crate::engine::filter::RowFilter;
 use crate::keyframe::Features;
 use crate::vpr::calibration::NullModel;
 use crate::vpr::contradiction::{contradiction, Contradiction};
-use crate::vpr::filter::RowFilter;
+use crate::vpr::feedback::VerdictEffect;
 use crate::vpr::fusion::{corroboration, fuse, fuse_with_contradiction};
 use crate::vpr::memory::KeyframeMemory;
 use crate::vpr::ogtl::{ogtl, text_profile_in, OgtlResult};
@@ -55,11 +56,11 @@ pub struct RankedCandidate {
     pub raw_score: f32,
     /// The score the threshold applies to and candidates are ordered by:
     /// `scene_confidence (1 − C) + (1 − scene_confidence) B`, then changed
-    /// by SLAM's verdicts where any apply ([`super::feedback`]).
+    /// by SLAM's verdicts where any apply ([`feedback`](crate::vpr::feedback)).
     pub score: f32,
     /// What the verdicts did to `score` (nothing until
-    /// [`super::feedback::apply`] runs).
-    pub verdict: super::feedback::VerdictEffect,
+    /// [`feedback::apply`](crate::vpr::feedback::apply) runs).
+    pub verdict: VerdictEffect,
 }
 
 /// Puts candidates in their final order (after their scores changed).
@@ -114,16 +115,21 @@ pub struct StageTimes {
     pub ogtl: Duration,
     /// Corroboration, calibration, fusion and the final sort.
     pub fusion: Duration,
+    /// The rules on top of the ranking and the selection: views turned
+    /// away, SLAM's verdicts, the operating point
+    /// ([`crate::query::answer`]; zero when only the ranking ran).
+    pub rules: Duration,
 }
 
 impl StageTimes {
     /// `(stage name, time)` pairs, in pipeline order.
-    pub fn stages(&self) -> [(&'static str, Duration); 4] {
+    pub fn stages(&self) -> [(&'static str, Duration); 5] {
         [
             ("scal", self.scal),
             ("osrl", self.osrl),
             ("ogtl", self.ogtl),
             ("fusion", self.fusion),
+            ("rules", self.rules),
         ]
     }
 }

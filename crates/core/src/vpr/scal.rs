@@ -8,13 +8,11 @@
 //! keeps the top `K` for the object and text layers, is
 //! [`scan`](super::scan).
 
+use crate::engine::matrix::dot;
 use crate::keyframe::{Features, SceneClass};
-use crate::vpr::clip01;
-use crate::vpr::filter::RowFilter;
-use crate::vpr::matrix::dot;
+use crate::numeric::clip01;
 use crate::vpr::memory::KeyframeMemory;
 use crate::vpr::params::{TemporalMode, VprParams};
-use crate::vpr::scan::scal_scan;
 
 /// `s_e = clip(ê_Qᵀ ê_C, 0, 1)` for L2-normalised descriptors.
 pub fn cosine(a: &[f32], b: &[f32]) -> f32 {
@@ -187,21 +185,6 @@ pub(crate) fn temporal_hit<M: KeyframeMemory + ?Sized>(
     }
 }
 
-/// SCAL over every eligible row: the top `params.top_k` hits by `S_s`
-/// descending (ties: lower row first). Empty if the query has no history.
-pub fn scal_scores<M, E>(
-    params: &VprParams,
-    query: &ScalQuery,
-    memory: &M,
-    eligible: &E,
-) -> Vec<ScalHit>
-where
-    M: KeyframeMemory + ?Sized,
-    E: RowFilter + ?Sized,
-{
-    scal_scan(params, query, memory, eligible).hits
-}
-
 /// Temporal steps SCAL can use: the length of `α`.
 pub(crate) const STEPS: usize = 3;
 
@@ -209,6 +192,7 @@ pub(crate) const STEPS: usize = 3;
 mod tests {
     use super::*;
     use crate::vpr::memory::VecMemory;
+    use crate::vpr::scan::scal_scores;
     use crate::vpr::testing::{close, features, memory_strategy, scene_strategy, unit_vector};
     use proptest::prelude::*;
 

@@ -6,7 +6,7 @@
 //!
 //! - **exact**: every row's f32 descriptor against the query and its
 //!   predecessors (one fused read), then `S_s` for every eligible row;
-//! - **compressed**: the one-byte [`codes`](super::codes) first, a quarter
+//! - **compressed**: the one-byte [`codes`](crate::engine::codes) first, a quarter
 //!   of the bytes, giving for every row an upper bound on its `s_e`
 //!   (estimate plus the code error bound). `S_s` is monotone in each `s_e`,
 //!   so the same temporal formula over the upper bounds bounds `S_s` from
@@ -39,32 +39,17 @@ use std::cell::Cell;
 use std::cmp::Ordering;
 
 use rayon::prelude::*;
-use serde::{Deserialize, Serialize};
 
+use crate::engine::codes::QueryCode;
+use crate::engine::filter::RowFilter;
+use crate::engine::kernels::CodeKernel;
+use crate::engine::matrix::multi_dot;
 use crate::keyframe::Features;
 use crate::vpr::appearance;
 use crate::vpr::calibration::{NullModel, Sampler};
-use crate::vpr::codes::QueryCode;
-use crate::vpr::filter::RowFilter;
-use crate::vpr::kernels::CodeKernel;
-use crate::vpr::matrix::multi_dot;
 use crate::vpr::memory::KeyframeMemory;
-use crate::vpr::params::VprParams;
+use crate::vpr::params::{ScanMode, VprParams};
 use crate::vpr::scal::{temporal_hit, ScalHit, ScalQuery, SceneProfile, STEPS};
-
-/// Which pass scores the store (`vpr.scan`).
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, Serialize, Deserialize)]
-#[serde(rename_all = "lowercase")]
-pub enum ScanMode {
-    /// Compressed from [`COMPRESSED_MIN_ROWS`] stored rows where the CPU
-    /// has a fast code kernel, exact otherwise.
-    #[default]
-    Auto,
-    /// Always the f32 pass.
-    Exact,
-    /// Always the code pass with exact re-scoring (same results).
-    Compressed,
-}
 
 /// Stored rows from which [`ScanMode::Auto`] scans the codes first.
 pub const COMPRESSED_MIN_ROWS: usize = 32_768;
@@ -85,7 +70,7 @@ fn exact_block(rows: usize) -> usize {
 }
 
 /// How many runs ahead a scan over scattered rows prefetches
-/// ([`DescriptorMatrix::prefetch_row`](crate::vpr::matrix::DescriptorMatrix::prefetch_row)).
+/// ([`DescriptorMatrix::prefetch_row`](crate::engine::matrix::DescriptorMatrix::prefetch_row)).
 const PREFETCH_RUNS_AHEAD: usize = 4;
 
 /// What one SCAL pass found.
@@ -97,6 +82,22 @@ pub struct ScalScan {
     pub null: NullModel,
     /// Rows that passed eligibility.
     pub eligible: usize,
+}
+
+/// SCAL over every eligible row: the top `params.top_k` hits by `S_s`
+/// descending (ties: lower row first), without the null model. Empty if
+/// the query has no history.
+pub fn scal_scores<M, E>(
+    params: &VprParams,
+    query: &ScalQuery,
+    memory: &M,
+    eligible: &E,
+) -> Vec<ScalHit>
+where
+    M: KeyframeMemory + ?Sized,
+    E: RowFilter + ?Sized,
+{
+    scal_scan(params, query, memory, eligible).hits
 }
 
 /// SCAL over every eligible row (see the module doc for the two passes).
@@ -427,7 +428,7 @@ impl ExactTable {
     }
 }
 
-/// [`clip01`](crate::vpr::clip01) written so that a loop of it
+/// [`clip01`](crate::numeric::clip01) written so that a loop of it
 /// vectorises: the same value for every input, NaN and −0 to +0 included
 /// (`max` returns its other operand for NaN; adding +0 turns −0 into +0).
 #[inline(always)]
@@ -536,73 +537,14 @@ where
         .iter()
         .map(|q| QueryCode::new(q, matrix.codes(), kernel))
         .collect();
-    let steps = side.steps();
-
-    // First, upper bounds on every visited row's s_e from the codes, in
-    // runs of consecutive rows. Then, per block, a bound on S_s without the
-    // scene modulation (which only lowers it), reading a chain row's bounds
-    // wherever in the visit it is: after erasures and replacements a
-    // track's rows are scattered over the store, and bounding each such
-    // chain row on its own tripled the pass (`humem bench scan`, the
-    // scoped case after churn). Only chain rows outside the visit get
-    // their bound on their own. NaN marks an ineligible row. Each block
-    // keeps its K highest.
+    let bounds = CodeBounds {
+        side,
+        codes: &codes,
+        kernel,
+    };
     let k = params.top_k;
-    let mut upper = vec![[0.0f32; STEPS]; visit.len()];
-    upper
-        .par_chunks_mut(BLOCK)
-        .enumerate()
-        .for_each_init(Vec::new, |bounds, (b, out)| {
-            let block = visit.block(b * BLOCK, out.len());
-            for (at, first, len) in block.runs() {
-                side.upper_rows(
-                    memory,
-                    &codes,
-                    kernel,
-                    first,
-                    bounds,
-                    &mut out[at..at + len],
-                );
-            }
-        });
-    let upper = &upper;
-    let mut loose = vec![f32::NAN; visit.len()];
-    let per_block: Vec<(usize, Vec<(f32, usize)>)> = loose
-        .par_chunks_mut(BLOCK)
-        .enumerate()
-        .map(|(b, out)| {
-            let block = visit.block(b * BLOCK, out.len());
-            let upper_at = |c: usize, j: usize| match visit.position(c) {
-                Some(i) => upper[i][j],
-                None => side.pair_bounds(memory, &codes, kernel, c, j).1,
-            };
-            // The block's K highest: candidates gather in a buffer of 4K,
-            // cut back to the K highest whenever it fills; from then on a
-            // row below the K-th highest so far cannot be among them.
-            let capacity = 4 * k.max(1);
-            let mut best = Vec::with_capacity(capacity);
-            let (mut count, mut threshold) = (0, f32::NEG_INFINITY);
-            for (i, slot) in out.iter_mut().enumerate() {
-                let row = block.row(i);
-                if eligible.test(row) {
-                    let u = temporal_hit(params, memory, steps, row, |c, j| (upper_at(c, j), None));
-                    *slot = u.score;
-                    count += 1;
-                    if u.score >= threshold {
-                        best.push((u.score, row));
-                        if best.len() == capacity {
-                            keep_highest(&mut best, k);
-                            threshold = best.iter().fold(f32::INFINITY, |m, p| m.min(p.0));
-                        }
-                    }
-                }
-            }
-            keep_highest(&mut best, k);
-            (count, best)
-        })
-        .collect();
-    let (counts, bests): (Vec<usize>, Vec<Vec<(f32, usize)>>) = per_block.into_iter().unzip();
-    let eligible_count: usize = counts.iter().sum();
+    let upper = bounds.upper_rows(memory, &visit);
+    let (loose, eligible_count, bests) = bounds.loose(params, memory, eligible, &visit, &upper);
     if eligible_count == 0 || k == 0 {
         return ScalScan {
             hits: Vec::new(),
@@ -625,38 +567,176 @@ where
     };
 
     // Every row that can reach L, scored exactly.
-    // Plain loops over blocks of the bounds: a rayon item per row would
-    // cost more than the comparison.
-    let open: Vec<usize> = loose
-        .par_chunks(BLOCK)
-        .enumerate()
-        .flat_map_iter(|(b, bounds)| {
-            let block = visit.block(b * BLOCK, bounds.len());
-            let mut found = Vec::new();
-            for (i, &u) in bounds.iter().enumerate() {
-                if u >= floor {
-                    let row = block.row(i);
-                    let tight = temporal_hit(params, memory, steps, row, |c, j| {
-                        (
-                            side.pair_bounds(memory, &codes, kernel, c, j).1,
-                            side.scenes[j].compatibility(memory.scene(c)),
-                        )
-                    });
-                    if tight.score >= floor {
-                        found.push(row);
-                    }
-                }
-            }
-            found
-        })
-        .collect();
+    let open = bounds.reaching(params, memory, &visit, &loose, floor);
     let mut hits = side.exact_hits(params, memory, &open);
     top_k(&mut hits, k);
 
-    // The null model's sample: the eligible rows whose key's tag the
-    // stride keeps (the same rows whatever their order), scored exactly.
+    let sample_rows = null_sample_rows(memory, &visit, &loose, eligible_count);
+    let location = sample_median(params, side, memory, &codes, kernel, &sample_rows);
+    ScalScan {
+        hits,
+        null: NullModel {
+            location,
+            samples: eligible_count,
+        },
+        eligible: eligible_count,
+    }
+}
+
+/// The query's codes and the kernel that reads them: what the compressed
+/// pass bounds the rows' scores with.
+struct CodeBounds<'a, 'q> {
+    side: &'a QuerySide<'q>,
+    codes: &'a [QueryCode],
+    kernel: CodeKernel,
+}
+
+impl CodeBounds<'_, '_> {
+    /// Upper bounds on every visited row's `s_e` from the codes, block by
+    /// block, in runs of consecutive rows.
+    fn upper_rows<M: KeyframeMemory + ?Sized>(
+        &self,
+        memory: &M,
+        visit: &Visit,
+    ) -> Vec<[f32; STEPS]> {
+        let mut upper = vec![[0.0f32; STEPS]; visit.len()];
+        upper
+            .par_chunks_mut(BLOCK)
+            .enumerate()
+            .for_each_init(Vec::new, |bounds, (b, out)| {
+                let block = visit.block(b * BLOCK, out.len());
+                for (at, first, len) in block.runs() {
+                    self.side.upper_rows(
+                        memory,
+                        self.codes,
+                        self.kernel,
+                        first,
+                        bounds,
+                        &mut out[at..at + len],
+                    );
+                }
+            });
+        upper
+    }
+
+    /// Per block, a bound on `S_s` without the scene modulation (which
+    /// only lowers it), reading a chain row's bounds wherever in the visit
+    /// it is: after erasures and replacements a track's rows are scattered
+    /// over the store, and bounding each such chain row on its own tripled
+    /// the pass (`humem bench scan`, the scoped case after churn). Only
+    /// chain rows outside the visit get their bound on their own.
+    ///
+    /// Returns the bounds (NaN marks an ineligible row), the number of
+    /// eligible rows, and each block's K highest bounds with their rows.
+    #[allow(clippy::type_complexity)]
+    fn loose<M, E>(
+        &self,
+        params: &VprParams,
+        memory: &M,
+        eligible: &E,
+        visit: &Visit,
+        upper: &[[f32; STEPS]],
+    ) -> (Vec<f32>, usize, Vec<Vec<(f32, usize)>>)
+    where
+        M: KeyframeMemory + ?Sized,
+        E: RowFilter + ?Sized,
+    {
+        let k = params.top_k;
+        let steps = self.side.steps();
+        let mut loose = vec![f32::NAN; visit.len()];
+        let per_block: Vec<(usize, Vec<(f32, usize)>)> = loose
+            .par_chunks_mut(BLOCK)
+            .enumerate()
+            .map(|(b, out)| {
+                let block = visit.block(b * BLOCK, out.len());
+                let upper_at = |c: usize, j: usize| match visit.position(c) {
+                    Some(i) => upper[i][j],
+                    None => {
+                        self.side
+                            .pair_bounds(memory, self.codes, self.kernel, c, j)
+                            .1
+                    }
+                };
+                // The block's K highest: candidates gather in a buffer of 4K,
+                // cut back to the K highest whenever it fills; from then on a
+                // row below the K-th highest so far cannot be among them.
+                let capacity = 4 * k.max(1);
+                let mut best = Vec::with_capacity(capacity);
+                let (mut count, mut threshold) = (0, f32::NEG_INFINITY);
+                for (i, slot) in out.iter_mut().enumerate() {
+                    let row = block.row(i);
+                    if eligible.test(row) {
+                        let u =
+                            temporal_hit(params, memory, steps, row, |c, j| (upper_at(c, j), None));
+                        *slot = u.score;
+                        count += 1;
+                        if u.score >= threshold {
+                            best.push((u.score, row));
+                            if best.len() == capacity {
+                                keep_highest(&mut best, k);
+                                threshold = best.iter().fold(f32::INFINITY, |m, p| m.min(p.0));
+                            }
+                        }
+                    }
+                }
+                keep_highest(&mut best, k);
+                (count, best)
+            })
+            .collect();
+        let (counts, bests): (Vec<usize>, Vec<Vec<(f32, usize)>>) = per_block.into_iter().unzip();
+        (loose, counts.iter().sum(), bests)
+    }
+
+    /// The rows whose bound with the scene modulation still reaches
+    /// `floor`: the only ones that can be in the top K. Plain loops over
+    /// blocks of the bounds: a rayon item per row would cost more than the
+    /// comparison.
+    fn reaching<M: KeyframeMemory + ?Sized>(
+        &self,
+        params: &VprParams,
+        memory: &M,
+        visit: &Visit,
+        loose: &[f32],
+        floor: f32,
+    ) -> Vec<usize> {
+        let side = self.side;
+        let steps = side.steps();
+        loose
+            .par_chunks(BLOCK)
+            .enumerate()
+            .flat_map_iter(|(b, bounds)| {
+                let block = visit.block(b * BLOCK, bounds.len());
+                let mut found = Vec::new();
+                for (i, &u) in bounds.iter().enumerate() {
+                    if u >= floor {
+                        let row = block.row(i);
+                        let tight = temporal_hit(params, memory, steps, row, |c, j| {
+                            (
+                                side.pair_bounds(memory, self.codes, self.kernel, c, j).1,
+                                side.scenes[j].compatibility(memory.scene(c)),
+                            )
+                        });
+                        if tight.score >= floor {
+                            found.push(row);
+                        }
+                    }
+                }
+                found
+            })
+            .collect()
+    }
+}
+
+/// The null model's sample: the eligible rows (a bound that is not NaN)
+/// whose key's tag the stride keeps, the same rows whatever their order.
+fn null_sample_rows<M: KeyframeMemory + ?Sized>(
+    memory: &M,
+    visit: &Visit,
+    loose: &[f32],
+    eligible_count: usize,
+) -> Vec<usize> {
     let sampler = Sampler::new(NullModel::stride(eligible_count));
-    let sample_rows: Vec<usize> = loose
+    loose
         .par_chunks(BLOCK)
         .enumerate()
         .flat_map_iter(|(b, bounds)| {
@@ -669,16 +749,7 @@ where
                 .map(|(row, _)| row)
                 .collect::<Vec<_>>()
         })
-        .collect();
-    let location = sample_median(params, side, memory, &codes, kernel, &sample_rows);
-    ScalScan {
-        hits,
-        null: NullModel {
-            location,
-            samples: eligible_count,
-        },
-        eligible: eligible_count,
-    }
+        .collect()
 }
 
 /// The median exact `S_s` of the sampled rows, as [`NullModel`] takes it
@@ -881,7 +952,7 @@ mod tests {
         {
             assert_eq!(
                 clip01_branchless(x).to_bits(),
-                crate::vpr::clip01(x).to_bits(),
+                crate::numeric::clip01(x).to_bits(),
                 "{x}"
             );
         }

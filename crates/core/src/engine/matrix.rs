@@ -4,7 +4,7 @@
 //! bandwidth. Rows are therefore stored row-major in a single `Vec<f32>` (no
 //! per-row allocation, no pointer chasing), removal is `swap_remove` so the
 //! storage stays dense, and [`dot`] sums in eight independent lanes (see
-//! [`crate::vpr::kernels::f32_lane_sums`]: AVX where the CPU has it, a
+//! [`crate::engine::kernels::f32_lane_sums`]: AVX where the CPU has it, a
 //! plain loop compiled per instruction set elsewhere; the order of the
 //! additions, and so the result, is the same on every CPU).
 //!
@@ -17,8 +17,8 @@ use std::borrow::Cow;
 use std::io;
 use std::path::Path;
 
-use crate::vpr::codes::CodeMatrix;
-use crate::vpr::row_file::RowFile;
+use crate::engine::codes::CodeMatrix;
+use crate::engine::row_file::RowFile;
 
 /// Row-major matrix of `len()` descriptors of dimension `dim()`.
 ///
@@ -42,7 +42,7 @@ pub struct DescriptorMatrix {
 #[derive(Debug, Clone, PartialEq, Default)]
 pub struct MatrixRows {
     values: Vec<f32>,
-    codes: crate::vpr::codes::CodeRows,
+    codes: crate::engine::codes::CodeRows,
 }
 
 /// Where the f32 rows are.
@@ -369,7 +369,7 @@ pub fn dot(a: &[f32], b: &[f32]) -> f32 {
 pub fn multi_dot<const Q: usize>(queries: &[&[f32]; Q], row: &[f32]) -> [f32; Q] {
     let n = queries.iter().fold(row.len(), |n, q| n.min(q.len()));
     let full = n - n % 8;
-    let acc = crate::vpr::kernels::f32_lane_sums(queries, row, full);
+    let acc = crate::engine::kernels::f32_lane_sums(queries, row, full);
     let mut out = [0.0f32; Q];
     for ((o, sums), q) in out.iter_mut().zip(&acc).zip(queries) {
         let tail: f32 = q[full..n]

@@ -1,7 +1,7 @@
 //! What a scan asks of the eligibility rule: a test per row, and which rows
 //! can pass at all.
 //!
-//! The rule itself is [`eligibility`](super::eligibility) (compiled for the
+//! The rule itself is [`eligibility`](crate::vpr::eligibility) (compiled for the
 //! index in `row_ids`). A scan needs only to test a row; but to cost what a
 //! query may return rather than the whole store, it must also know where
 //! the rows that can pass are. A filter that knows (the index's, from its

@@ -167,7 +167,7 @@ impl CodeMatrix {
     /// as they are, not encoded again.
     pub fn gathered(&self, order: &[usize]) -> CodeRows {
         CodeRows {
-            codes: super::gather_rows(&self.codes, self.stride, order),
+            codes: crate::numeric::gather_rows(&self.codes, self.stride, order),
             rows: order.iter().map(|&row| self.rows[row]).collect(),
         }
     }
@@ -325,7 +325,7 @@ impl QueryCode {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::vpr::matrix::dot;
+    use crate::engine::matrix::dot;
     use proptest::prelude::*;
 
     fn random_rows(seed: u64, n: usize, dim: usize) -> Vec<Vec<f32>> {

@@ -163,7 +163,7 @@ impl CodeKernel {
 /// `sums[k][lane] = Σ_i q_k[8i + lane] · row[8i + lane]` over the first
 /// `full` values (a multiple of 8, within every slice), each lane's
 /// products added in order, one rounding per multiply and per add: the
-/// eight partial sums of [`crate::vpr::matrix::multi_dot`]. With AVX where
+/// eight partial sums of [`crate::engine::matrix::multi_dot`]. With AVX where
 /// the CPU has it (detected once), the plain loop elsewhere; the same bits
 /// either way.
 pub fn f32_lane_sums<const Q: usize>(

@@ -1,0 +1,98 @@
+//! A query's eligibility rule bound to the index's rows, with the rows of
+//! the maps it admits as the partition a scan visits when they are a
+//! small part of the store.
+
+use std::collections::BTreeMap;
+
+use crate::engine::filter::RowFilter;
+use crate::row_ids::{Eligibility, RowIds};
+use crate::vpr::eligibility::QueryContext;
+
+use super::table::Index;
+
+impl Index {
+    /// The eligibility rule of `context`, compiled for this index's rows:
+    /// `test(row)` agrees with [`is_eligible`](crate::vpr::eligibility::is_eligible) on the row's keyframe.
+    /// It names the rows of the maps the rule admits as its partition, so
+    /// that a scan visits only those, when they are at most
+    /// [`PARTITION_MAX_SHARE`] of the store.
+    pub fn eligibility(&self, context: &QueryContext) -> RowEligibility<'_> {
+        let rule = Eligibility::compile(context, &self.interner);
+        let partition = self.partition(&rule);
+        RowEligibility {
+            rule,
+            ids: &self.ids,
+            partition,
+        }
+    }
+
+    /// The rows of every map `rule` admits (scope and read access), sorted,
+    /// or `None` when they are more than [`PARTITION_MAX_SHARE`] of the
+    /// store. The tracks are the partition: every row is in its map's
+    /// track, so counting costs one look per map, and gathering the rows
+    /// one per admitted row.
+    fn partition(&self, rule: &Eligibility) -> Option<Vec<usize>> {
+        let admitted: Vec<&BTreeMap<u64, usize>> = self
+            .tracks
+            .values()
+            .filter(|track| {
+                track.values().next().is_some_and(|&row| {
+                    let ids = &self.ids[row];
+                    rule.admits_map(ids.robot, ids.session, ids.map_id)
+                })
+            })
+            .collect();
+        let count: usize = admitted.iter().map(|track| track.len()).sum();
+        if count as f64 > PARTITION_MAX_SHARE * self.len() as f64 {
+            return None;
+        }
+        let mut rows: Vec<usize> = admitted
+            .into_iter()
+            .flat_map(|track| track.values().copied())
+            .collect();
+        rows.sort_unstable();
+        Some(rows)
+    }
+}
+
+/// The largest share of the store a query's admitted maps may hold for
+/// its scan to visit only their rows ([`Index::eligibility`]). Past it a
+/// scan of every row in order costs no more than gathering the rows
+/// (`humem bench scan`, the scoped case).
+pub const PARTITION_MAX_SHARE: f64 = 0.5;
+
+/// A query's eligibility rule bound to an index's rows, with the rows it
+/// can admit when they are a small part of the store.
+#[derive(Debug, Clone)]
+pub struct RowEligibility<'a> {
+    rule: Eligibility,
+    ids: &'a [RowIds],
+    partition: Option<Vec<usize>>,
+}
+
+impl RowEligibility<'_> {
+    /// Whether `row` may be proposed. Panics if `row` is out of range.
+    #[inline]
+    pub fn test(&self, row: usize) -> bool {
+        self.rule.test(&self.ids[row])
+    }
+
+    /// The same rule, naming no partition: a scan with it visits every
+    /// row (the reference the partitioned scan is checked against, and the
+    /// baseline `humem bench scan` measures it with).
+    pub fn without_partition(mut self) -> Self {
+        self.partition = None;
+        self
+    }
+}
+
+impl RowFilter for RowEligibility<'_> {
+    #[inline]
+    fn test(&self, row: usize) -> bool {
+        RowEligibility::test(self, row)
+    }
+
+    fn partition(&self) -> Option<&[usize]> {
+        self.partition.as_deref()
+    }
+}

@@ -1,0 +1,43 @@
+//! The index as ranking sees it: the [`KeyframeMemory`] view the scoring
+//! layers read rows through.
+
+use crate::engine::matrix::DescriptorMatrix;
+use crate::keyframe::{ObjectObservation, SceneClass};
+use crate::vpr::appearance::AppearanceMatrix;
+use crate::vpr::memory::KeyframeMemory;
+
+use super::table::Index;
+
+impl KeyframeMemory for Index {
+    fn descriptors(&self) -> &DescriptorMatrix {
+        &self.matrix
+    }
+
+    fn appearance(&self) -> &AppearanceMatrix {
+        &self.appearance
+    }
+
+    fn scene(&self, row: usize) -> &[SceneClass] {
+        &self.rows[row].scene
+    }
+
+    fn predecessor(&self, row: usize) -> Option<usize> {
+        self.prev(row)
+    }
+
+    fn objects(&self, row: usize) -> &[ObjectObservation] {
+        &self.rows[row].objects
+    }
+
+    fn text_document_frequency(&self, normalized: &str) -> u32 {
+        self.text_df.get(normalized).copied().unwrap_or(0)
+    }
+
+    fn keyframe_count(&self) -> u32 {
+        u32::try_from(self.rows.len()).unwrap_or(u32::MAX)
+    }
+
+    fn sample_tag(&self, row: usize) -> u32 {
+        self.tags[row]
+    }
+}

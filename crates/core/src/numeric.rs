@@ -1,0 +1,47 @@
+//! Small numeric helpers shared by the scan engine and the scoring layers.
+//!
+//! They sit in a leaf module of their own so that every layer can use them
+//! without importing from a parent (the scoring layers would otherwise
+//! reach up into `vpr`, and `vpr` down into them again).
+
+/// `clip(x, 0, 1)`, with NaN mapped to 0 and −0 to +0 so that scores always
+/// order sensibly.
+pub(crate) fn clip01(x: f32) -> f32 {
+    if x > 0.0 {
+        x.min(1.0)
+    } else {
+        0.0
+    }
+}
+
+/// Copies of the rows `order` lists, in that order, from a row-major table
+/// of `stride` values a row: the read-only half of a reordering
+/// (descriptor codes, thumbnails).
+pub(crate) fn gather_rows<T: Copy>(data: &[T], stride: usize, order: &[usize]) -> Vec<T> {
+    let mut gathered = Vec::with_capacity(order.len() * stride);
+    for &row in order {
+        gathered.extend_from_slice(&data[row * stride..(row + 1) * stride]);
+    }
+    gathered
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn clip01_orders_nan_and_negative_zero_first() {
+        assert_eq!(clip01(f32::NAN).to_bits(), 0.0f32.to_bits());
+        assert_eq!(clip01(-0.0).to_bits(), 0.0f32.to_bits());
+        assert_eq!(clip01(-3.0), 0.0);
+        assert_eq!(clip01(0.25), 0.25);
+        assert_eq!(clip01(7.0), 1.0);
+    }
+
+    #[test]
+    fn gather_rows_copies_the_listed_rows_in_order() {
+        let table = [1, 2, 3, 4, 5, 6];
+        assert_eq!(gather_rows(&table, 2, &[2, 0]), vec![5, 6, 1, 2]);
+        assert!(gather_rows(&table, 2, &[]).is_empty());
+    }
+}
