@@ -1,7 +1,8 @@
 #!/usr/bin/env bash
 # The project's test command (README "Test"): installs the Debian packages
 # and the models if they are missing, checks the model converter on real
-# pictures and the int8 models against the fp32 ones, then formatting, lints
+# pictures and the int8 models against the fp32 ones, then each crate's
+# module graph (tools/check_module_graph.py), formatting, lints
 # and every Rust test, unit and end-to-end (the e2e tests start the
 # real `humem` binary and run the real models), then the C++ and the Python
 # clients' tests against that binary, and the deployment files checked with the real
@@ -18,6 +19,9 @@ models/.venv/bin/python tools/test_efficientnet_to_onnx.py models
 models/.venv/bin/python tools/test_quantize_models.py models
 models/.venv/bin/python tools/test_make_tiny_yolo.py
 models/.venv/bin/python tools/test_docs_links.py
+echo "== module graph (no import circles or upward imports; files and functions within size)"
+python3 tools/test_check_module_graph.py
+python3 tools/check_module_graph.py
 echo "== cargo fmt --check"
 cargo fmt --all -- --check
 echo "== cargo clippy"
@@ -26,7 +30,7 @@ echo "== cargo test"
 cargo test --workspace --locked
 echo "== the compressed scan with each slower code kernel this CPU runs"
 for kernel in avx2 portable; do
-    HUMEM_CODE_KERNEL=$kernel cargo test --locked -p humem-core --lib vpr::
+    HUMEM_CODE_KERNEL=$kernel cargo test --locked -p humem-core --lib
 done
 echo "== client-cpp (scripts/test-client-cpp.sh)"
 HUMEM_BIN=target/debug/humem scripts/test-client-cpp.sh

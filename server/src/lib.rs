@@ -11,18 +11,24 @@
 //! - [`server`]: builds the store, perception and service from a
 //!   [`config::Config`], serves gRPC (with health and reflection) and
 //!   metrics, and shuts down cleanly;
-//! - [`tls`]: TLS on the gRPC port, reloaded when its files change;
+//! - [`api`]: the tonic service, a thin adapter: validates a request,
+//!   checks who asks ([`auth`]) and how often ([`quota`]), hands it to the
+//!   pipeline, converts the answer;
 //! - [`auth`]: credentials (tokens, client certificates), who may act for
 //!   which robot and read which maps, the audit trail;
 //! - [`quota`]: per-robot insert and query rates and store size;
-//! - [`api`]: the tonic service, a thin adapter: validates a request, hands
-//!   it to the pipeline, converts the answer;
+//! - [`tls`]: TLS on the gRPC port, reloaded when its files change;
+//! - `watch`: notices that a file (certificates, the token file) changed;
 //! - [`pipeline`]: what one request does, in domain types: admission, image
-//!   resolution, blocking work, the query over the index, latest-wins;
+//!   resolution, blocking work, the query over the index
+//!   ([`humem_core::query`] does its index-level end), latest-wins;
 //! - [`metrics`]: the Prometheus metrics and their HTTP endpoint;
 //! - [`config`]: every setting, from TOML and `HUMEM_*` variables, validated;
 //! - [`client`]: connecting to a server, for this workspace's own clients;
 //! - [`proto`]: the generated API types and services.
+//!
+//! `tools/check_module_graph.py` (run by the test command) keeps each
+//! crate's modules free of import circles.
 
 pub mod api;
 pub mod auth;
