@@ -12,8 +12,8 @@ use async_nats::jetstream::{self, stream};
 use async_nats::{Client, ConnectOptions, Event};
 
 use crate::config::ClusterConfig;
+use crate::error::ClusterError;
 use crate::observe::ClusterObserver;
-use crate::ClusterError;
 
 /// How long the start keeps trying to reach NATS and its stream.
 const START_PATIENCE: Duration = Duration::from_secs(60);

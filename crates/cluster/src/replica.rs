@@ -18,9 +18,9 @@ use humem_store::{Mutation, MutationOutcome, Store};
 use crate::applier::{self, Shared};
 use crate::config::ClusterConfig;
 use crate::entry;
+use crate::error::ClusterError;
 use crate::nats;
 use crate::observe::ClusterObserver;
-use crate::ClusterError;
 
 /// Keyframes per log entry when a store written before cluster mode is
 /// published: about 0.5 MB with images' features, under NATS' default

@@ -22,7 +22,7 @@ use humem_store::Store;
 
 use crate::applier::Shared;
 use crate::config::ClusterConfig;
-use crate::ClusterError;
+use crate::error::ClusterError;
 
 /// The object holding the newest snapshot.
 pub const OBJECT: &str = "store";
