@@ -17,9 +17,11 @@ use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
 use std::sync::Arc;
 use std::time::{Duration, Instant};
 
+use humem_core::index::Index;
 use parking_lot::{Mutex, RwLock};
 
-use crate::{journal, snapshot, Index, StoreError};
+use crate::error::StoreError;
+use crate::{journal, snapshot};
 
 /// One snapshot written.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]

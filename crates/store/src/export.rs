@@ -20,7 +20,11 @@ use std::path::Path;
 
 use serde::{Deserialize, Serialize};
 
-use crate::{StoreError, STORE_FORMAT};
+use crate::error::StoreError;
+use crate::layout::{
+    KEYFRAMES_TREE, META_DIM, META_FORMAT, META_LOG_POSITION, META_TREE, STORE_FORMAT,
+    VERDICTS_BY_CANDIDATE_TREE, VERDICTS_TREE,
+};
 
 const MAGIC: &[u8; 8] = b"HUMEMSNP";
 /// Version of this file's layout.
@@ -48,9 +52,9 @@ pub struct ExportHeader {
 
 /// The trees an export carries, by tag.
 pub(crate) const TREES: [(u8, &str); 3] = [
-    (0, crate::KEYFRAMES_TREE),
-    (1, crate::VERDICTS_TREE),
-    (2, crate::VERDICTS_BY_CANDIDATE_TREE),
+    (0, KEYFRAMES_TREE),
+    (1, VERDICTS_TREE),
+    (2, VERDICTS_BY_CANDIDATE_TREE),
 ];
 
 fn io(context: &str, e: std::io::Error) -> StoreError {
@@ -172,12 +176,12 @@ pub fn restore(dir: &Path, file: &Path) -> Result<ExportHeader, StoreError> {
             let value = read_bytes(&mut input, "a record's value")?;
             tree.insert(key, value)?;
         }
-        let meta = db.open_tree(crate::META_TREE)?;
-        meta.insert(crate::META_FORMAT, &STORE_FORMAT.to_be_bytes())?;
+        let meta = db.open_tree(META_TREE)?;
+        meta.insert(META_FORMAT, &STORE_FORMAT.to_be_bytes())?;
         if header.dim > 0 {
-            meta.insert(crate::META_DIM, &header.dim.to_be_bytes())?;
+            meta.insert(META_DIM, &header.dim.to_be_bytes())?;
         }
-        meta.insert(crate::META_LOG_POSITION, &header.log_position.to_be_bytes())?;
+        meta.insert(META_LOG_POSITION, &header.log_position.to_be_bytes())?;
         db.flush()?;
     }
     // The directory itself stays (it may be a mount point): its entries go,

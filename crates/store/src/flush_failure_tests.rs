@@ -6,6 +6,8 @@
 use super::tests::{kf, open_when_free, session};
 use super::verdict_tests::verdict;
 use super::*;
+use crate::layout::{KEYFRAMES_TREE, VERDICTS_BY_CANDIDATE_TREE, VERDICTS_TREE};
+use humem_core::keyframe::Pose;
 
 /// One keyframe as the store holds it: key, map and x of the pose.
 type Row = (String, u64, u64, i64);

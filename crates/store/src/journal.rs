@@ -21,7 +21,7 @@ use std::hash::{BuildHasher, Hasher};
 
 use serde::{Deserialize, Serialize};
 
-use crate::StoreError;
+use crate::error::StoreError;
 
 /// Name of the journal's sled tree.
 pub const TREE: &str = "journal";

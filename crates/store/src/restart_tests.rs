@@ -4,6 +4,8 @@
 
 use super::tests::{kf, open_when_free, session};
 use super::*;
+use humem_core::keyframe::Pose;
+use std::time::{Duration, Instant};
 
 /// Opens `dir` with automatic snapshots off, so each test decides when
 /// one is written.

@@ -335,7 +335,7 @@ pub fn read(
     dir: &Path,
     store_id: u128,
     dim: usize,
-    descriptors_to_file: Option<crate::FileRule>,
+    descriptors_to_file: Option<crate::placement::FileRule>,
 ) -> Result<Option<(Header, Index)>, SnapshotError> {
     let file_path = path(dir);
     let io = |source| SnapshotError::Io {

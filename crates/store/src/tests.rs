@@ -2,7 +2,8 @@
 //! with sled.
 
 use super::*;
-use humem_core::keyframe::{Features, ObjectObservation, TextObservation};
+use crate::layout::{KEYFRAMES_TREE, META_FORMAT, META_TREE};
+use humem_core::keyframe::{Features, ObjectObservation, Pose, SessionKey, TextObservation};
 
 pub(crate) fn kf(robot: &str, session: &str, id: u64, map: u64) -> SemanticKeyframe {
     SemanticKeyframe {

@@ -4,6 +4,7 @@
 
 use super::tests::{kf, open_when_free, session};
 use super::*;
+use crate::layout::{VERDICTS_BY_CANDIDATE_TREE, VERDICTS_TREE};
 
 /// A loop verdict on keyframes `query` and `candidate` of robot r, session s.
 pub(crate) fn verdict(query: u64, candidate: u64, accepted: bool) -> Verdict {

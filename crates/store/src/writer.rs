@@ -20,18 +20,17 @@ use parking_lot::RwLock;
 use sled::transaction::{ConflictableTransactionError, TransactionError, Transactional};
 use tokio::sync::{mpsc, oneshot};
 
-use super::checkpoint::Checkpoints;
-use super::codec::{self, decode_record, encode_key, encode_record};
-use super::export::{self, ExportHeader};
-use super::journal;
-use super::placement::DescriptorPlacement;
-use super::robot_counts::{self, Deltas, RobotCounts};
-use super::rollback::{Counters, Rollback, TreeName};
-use super::{
-    Index, LogApplied, LogEntry, MapKey, Mutation, MutationOutcome, PoseUpdate, StoreError,
-    META_DIM, META_LOG_POSITION,
-};
-use humem_core::index::RowGrouping;
+use crate::checkpoint::Checkpoints;
+use crate::codec::{self, decode_record, encode_key, encode_record};
+use crate::error::StoreError;
+use crate::export::{self, ExportHeader};
+use crate::journal;
+use crate::layout::{META_DIM, META_LOG_POSITION, STORE_FORMAT};
+use crate::mutation::{LogApplied, LogEntry, Mutation, MutationOutcome, PoseUpdate};
+use crate::placement::DescriptorPlacement;
+use crate::robot_counts::{self, Deltas, RobotCounts};
+use crate::rollback::{Counters, Rollback, TreeName};
+use humem_core::index::{Index, MapKey, RowGrouping};
 use humem_core::keyframe::{KeyframeKey, Pose, SemanticKeyframe, SessionKey};
 use humem_core::observe::SharedObserver;
 use humem_core::verdict::Verdict;
@@ -81,7 +80,7 @@ enum Answer {
 }
 
 /// The trees the writer writes.
-pub(super) struct Trees {
+pub(crate) struct Trees {
     pub db: sled::Db,
     pub keyframes: sled::Tree,
     pub meta: sled::Tree,
@@ -105,7 +104,7 @@ impl Trees {
 
 /// Sending side of the writer's queue.
 #[derive(Clone)]
-pub(super) struct WriterHandle {
+pub(crate) struct WriterHandle {
     queue: mpsc::Sender<Job>,
     capacity: usize,
     observer: SharedObserver,
@@ -150,7 +149,7 @@ impl WriterHandle {
 }
 
 /// Starts the writer thread. It ends when every handle is dropped.
-pub(super) fn spawn(
+pub(crate) fn spawn(
     trees: Trees,
     checkpoints: Arc<Checkpoints>,
     placement: Arc<DescriptorPlacement>,
@@ -497,7 +496,7 @@ impl Writer {
         });
         let header = ExportHeader {
             format: export::EXPORT_FORMAT,
-            store_format: super::STORE_FORMAT,
+            store_format: STORE_FORMAT,
             dim: self.dim as u32,
             log_position: position,
             keyframes: self.keyframes,
@@ -608,7 +607,7 @@ impl Writer {
     fn stage_log(
         &mut self,
         entries: Vec<LogEntry>,
-        short: Option<super::disk::Short>,
+        short: Option<crate::disk::Short>,
         changes: &mut Vec<IndexChange>,
         journaled: &mut u64,
     ) -> LogApplied {
