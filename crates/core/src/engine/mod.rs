@@ -16,10 +16,13 @@
 //! - [`row_file`]: where the f32 rows go when they leave memory (the one
 //!   file I/O of the core: positional reads and writes);
 //! - [`filter`]: what a scan asks of the eligibility rule (a test per row
-//!   and, where known, the rows that can pass).
+//!   and, where known, the rows that can pass);
+//! - `visit`: which rows a scan visits, in blocks for the cores and runs of
+//!   consecutive rows.
 
 pub mod codes;
 pub mod filter;
 pub mod kernels;
 pub mod matrix;
 pub mod row_file;
+pub(crate) mod visit;

@@ -44,6 +44,7 @@ use crate::engine::codes::QueryCode;
 use crate::engine::filter::RowFilter;
 use crate::engine::kernels::CodeKernel;
 use crate::engine::matrix::multi_dot;
+use crate::engine::visit::Visit;
 use crate::keyframe::Features;
 use crate::vpr::appearance;
 use crate::vpr::calibration::{NullModel, Sampler};
@@ -127,79 +128,6 @@ where
         compressed_scan(params, &side, memory, eligible, visit)
     } else {
         exact_scan(params, &side, memory, eligible, visit)
-    }
-}
-
-/// The rows a pass visits, by position: every stored row, or the sorted
-/// rows of a filter's partition.
-#[derive(Debug, Clone, Copy)]
-enum Visit<'a> {
-    /// Rows `0..n`.
-    All(usize),
-    /// These rows, ascending.
-    Only(&'a [usize]),
-}
-
-impl<'a> Visit<'a> {
-    fn len(&self) -> usize {
-        match self {
-            Visit::All(n) => *n,
-            Visit::Only(rows) => rows.len(),
-        }
-    }
-
-    /// The position of `row` in the visit, if it is one of its rows.
-    #[inline]
-    fn position(&self, row: usize) -> Option<usize> {
-        match self {
-            Visit::All(n) => (row < *n).then_some(row),
-            Visit::Only(rows) => rows.binary_search(&row).ok(),
-        }
-    }
-
-    /// The rows at positions `first..first + len`.
-    fn block(&self, first: usize, len: usize) -> Block<'a> {
-        match self {
-            Visit::All(_) => Block::Range(first, len),
-            Visit::Only(rows) => Block::Rows(&rows[first..first + len]),
-        }
-    }
-}
-
-/// The rows of one block of a [`Visit`].
-#[derive(Debug, Clone, Copy)]
-enum Block<'a> {
-    /// `len` rows from `first` on.
-    Range(usize, usize),
-    /// These rows, ascending.
-    Rows(&'a [usize]),
-}
-
-impl Block<'_> {
-    /// The block's `i`-th row.
-    #[inline]
-    fn row(&self, i: usize) -> usize {
-        match self {
-            Block::Range(first, _) => first + i,
-            Block::Rows(rows) => rows[i],
-        }
-    }
-
-    /// The block's runs of consecutive rows: `(position, first row, rows)`.
-    fn runs(&self) -> Vec<(usize, usize, usize)> {
-        match self {
-            Block::Range(first, len) => vec![(0, *first, *len)],
-            Block::Rows(rows) => {
-                let mut runs: Vec<(usize, usize, usize)> = Vec::new();
-                for (i, &row) in rows.iter().enumerate() {
-                    match runs.last_mut() {
-                        Some((_, first, len)) if *first + *len == row => *len += 1,
-                        _ => runs.push((i, row, 1)),
-                    }
-                }
-                runs
-            }
-        }
     }
 }
 
