@@ -141,7 +141,8 @@ async fn rendered_text_is_read_back_and_grounds_a_match() {
             "scal",
             "osrl",
             "ogtl",
-            "fusion"
+            "fusion",
+            "rules"
         ]
     );
 
