@@ -9,7 +9,8 @@
 //! camera has moved far enough, turned far enough, or enough time has
 //! passed since the last, so a robot standing still adds nothing.
 
-use crate::{Pose, TimedPose};
+use crate::error::RecordingError;
+use crate::pose::{Pose, TimedPose};
 
 /// When an image becomes a keyframe: the first always, then each image
 /// that is at least `min_distance_m` from the last keyframe, or turned at
@@ -225,7 +226,7 @@ pub fn plan(
     rule: &KeyframeRule,
     image_source: &str,
     pose_source: &str,
-) -> Result<Plan, crate::RecordingError> {
+) -> Result<Plan, RecordingError> {
     let mut order: Vec<usize> = (0..times.len()).collect();
     order.sort_by(|&a, &b| times[a].total_cmp(&times[b]).then(a.cmp(&b)));
     let posed: Vec<(usize, f64, Pose)> = order
@@ -243,7 +244,7 @@ pub fn plan(
                 "none".to_string()
             }
         };
-        return Err(crate::RecordingError::NoPose {
+        return Err(RecordingError::NoPose {
             images: image_source.into(),
             poses: pose_source.into(),
             tolerance,

@@ -13,9 +13,11 @@ use std::io::Read;
 use std::path::{Path, PathBuf};
 
 use crate::align::{plan, sort_poses};
+use crate::error::RecordingError;
+use crate::extraction::{Format, Options, Summary};
 use crate::messages::{self, Dialect, RawImage};
 use crate::output::{FrameImage, LoopFolder};
-use crate::{Format, Options, RecordingError, Summary, TimedPose};
+use crate::pose::TimedPose;
 
 /// One message of a bag.
 struct BagMessage<'a> {

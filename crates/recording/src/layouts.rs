@@ -14,8 +14,10 @@ use std::path::{Path, PathBuf};
 use nalgebra::{Matrix3, Quaternion, Rotation3, UnitQuaternion, Vector3};
 
 use crate::align::{plan, sort_poses};
+use crate::error::RecordingError;
+use crate::extraction::{Format, Options, Summary};
 use crate::output::{FrameImage, LoopFolder};
-use crate::{Format, Options, Pose, RecordingError, Summary, TimedPose};
+use crate::pose::{Pose, TimedPose};
 
 /// A layout read: image files with times, and poses.
 struct Listing {

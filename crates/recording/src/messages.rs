@@ -13,7 +13,7 @@
 
 use nalgebra::{Quaternion, UnitQuaternion, Vector3};
 
-use crate::Pose;
+use crate::pose::Pose;
 
 /// How a bag serialises its messages.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]

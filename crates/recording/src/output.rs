@@ -9,7 +9,8 @@
 use std::fmt::Write as _;
 use std::path::{Path, PathBuf};
 
-use crate::{Pose, RecordingError};
+use crate::error::RecordingError;
+use crate::pose::Pose;
 
 /// A keyframe's image as the source holds it.
 pub enum FrameImage {
