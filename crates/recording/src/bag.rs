@@ -12,7 +12,7 @@ use std::collections::{BTreeMap, HashMap};
 use std::io::Read;
 use std::path::{Path, PathBuf};
 
-use crate::align::{plan, sort_poses};
+use crate::align::{plan, sort_poses, Plan};
 use crate::error::RecordingError;
 use crate::extraction::{Format, Options, Summary};
 use crate::messages::{self, Dialect, RawImage};
@@ -294,6 +294,51 @@ impl Survey {
         }
     }
 
+    /// The image topic, and where the poses come from with the poses
+    /// themselves (taken out of the survey): the asked transform of `/tf`,
+    /// else the pose topic. Errors list the bag's topics.
+    fn sources(
+        &mut self,
+        path: &Path,
+        options: &Options,
+    ) -> Result<(String, String, Vec<TimedPose>), RecordingError> {
+        let topic_error = |survey: &Survey, reason: String| RecordingError::Topic {
+            path: path.to_path_buf(),
+            reason,
+            topics: survey.listing(),
+        };
+        let image_topic = self
+            .choose(
+                options.image_topic.as_ref(),
+                "image",
+                [IMAGE, COMPRESSED],
+                "--image-topic",
+                "no image topic",
+            )
+            .map_err(|reason| topic_error(self, reason))?;
+        if let Some((parent, child)) = &options.tf_frames {
+            if self.tf_poses.is_empty() {
+                return Err(topic_error(self, format!(
+                    "no transform from {parent} to {child} on /tf or /tf_static (only direct edges of the tree are read)"
+                )));
+            }
+            let poses = std::mem::take(&mut self.tf_poses);
+            return Ok((image_topic, format!("/tf {parent} -> {child}"), poses));
+        }
+        let topic = self
+            .choose(
+                options.pose_topic.as_ref(),
+                "pose",
+                [ODOMETRY, POSE_STAMPED],
+                "--pose-topic",
+                "no pose topic (nav_msgs/Odometry or geometry_msgs/PoseStamped); \
+                 for poses on /tf name the frames with --tf-frames",
+            )
+            .map_err(|reason| topic_error(self, reason))?;
+        let poses = self.poses.remove(&topic).unwrap_or_default();
+        Ok((image_topic, topic, poses))
+    }
+
     fn of_types(&self, types: &[&str]) -> Vec<&String> {
         self.topics
             .iter()
@@ -324,13 +369,48 @@ pub fn extract(
         Format::Ros1Bag => Dialect::Ros1,
         _ => Dialect::Cdr,
     };
-    let message_error = |topic: &str, index: usize, reason: String| RecordingError::Message {
+    let mut survey = survey(path, format, dialect, options)?;
+    let (image_topic, pose_source, mut poses) = survey.sources(path, options)?;
+    sort_poses(&mut poses);
+    let times = survey.image_times.remove(&image_topic).unwrap_or_default();
+    let plan = plan(
+        &times,
+        &poses,
+        options.pose_tolerance,
+        &options.keyframes,
+        &image_topic,
+        &pose_source,
+    )?;
+    let keyframes = write_keyframes(path, format, dialect, &image_topic, &plan, out)?;
+    Ok(Summary {
+        format,
+        image_source: image_topic,
+        pose_source,
+        images: plan.images,
+        without_pose: plan.without_pose,
+        keyframes,
+    })
+}
+
+/// A message that cannot be used: message `index` of `topic` in the bag
+/// at `path`.
+fn message_error(path: &Path, topic: &str, index: usize, reason: String) -> RecordingError {
+    RecordingError::Message {
         path: path.to_path_buf(),
         topic: topic.to_string(),
         index,
         reason,
-    };
-    // Pass 1: topics, image times, poses.
+    }
+}
+
+/// Pass 1: every topic with its type and count, the image times, the
+/// poses of every pose topic and of the asked transform.
+fn survey(
+    path: &Path,
+    format: Format,
+    dialect: Dialect,
+    options: &Options,
+) -> Result<Survey, RecordingError> {
     let mut survey = Survey::default();
     for_each_message(path, format, &mut |m| {
         let entry = survey
@@ -340,7 +420,7 @@ pub fn extract(
         let index = entry.1;
         entry.1 += 1;
         let bad = |e: messages::MessageError| {
-            message_error(m.topic, index, format!("{} {e}", m.datatype))
+            message_error(path, m.topic, index, format!("{} {e}", m.datatype))
         };
         match m.datatype {
             IMAGE | COMPRESSED => {
@@ -388,56 +468,19 @@ pub fn extract(
         }
         Ok(())
     })?;
-    let topic_error = |reason: String| RecordingError::Topic {
-        path: path.to_path_buf(),
-        reason,
-        topics: survey.listing(),
-    };
-    let image_topic = survey
-        .choose(
-            options.image_topic.as_ref(),
-            "image",
-            [IMAGE, COMPRESSED],
-            "--image-topic",
-            "no image topic",
-        )
-        .map_err(topic_error)?;
-    let (pose_source, mut poses) = if let Some((parent, child)) = &options.tf_frames {
-        if survey.tf_poses.is_empty() {
-            return Err(topic_error(format!(
-                "no transform from {parent} to {child} on /tf or /tf_static (only direct edges of the tree are read)"
-            )));
-        }
-        (
-            format!("/tf {parent} -> {child}"),
-            std::mem::take(&mut survey.tf_poses),
-        )
-    } else {
-        let topic = survey
-            .choose(
-                options.pose_topic.as_ref(),
-                "pose",
-                [ODOMETRY, POSE_STAMPED],
-                "--pose-topic",
-                "no pose topic (nav_msgs/Odometry or geometry_msgs/PoseStamped); \
-                 for poses on /tf name the frames with --tf-frames",
-            )
-            .map_err(topic_error)?;
-        let poses = survey.poses.remove(&topic).unwrap_or_default();
-        (topic, poses)
-    };
-    sort_poses(&mut poses);
-    let times = survey.image_times.remove(&image_topic).unwrap_or_default();
-    let plan = plan(
-        &times,
-        &poses,
-        options.pose_tolerance,
-        &options.keyframes,
-        &image_topic,
-        &pose_source,
-    )?;
+    Ok(survey)
+}
 
-    // Pass 2: the keyframes' images, written in time order.
+/// Pass 2: the keyframes' images of `image_topic`, written in time order
+/// into a new `loop` folder at `out`. Gives the number written.
+fn write_keyframes(
+    path: &Path,
+    format: Format,
+    dialect: Dialect,
+    image_topic: &str,
+    plan: &Plan,
+    out: &Path,
+) -> Result<usize, RecordingError> {
     let wanted: HashMap<usize, usize> = plan
         .keyframes
         .iter()
@@ -457,7 +500,7 @@ pub fn extract(
             return Ok(());
         };
         let image = frame_image(m.datatype, m.data, dialect)
-            .map_err(|reason| message_error(m.topic, here, reason))?;
+            .map_err(|reason| message_error(path, m.topic, here, reason))?;
         waiting.insert(k, image);
         while let Some(image) = waiting.remove(&folder.len()) {
             let (_, time, pose) = plan.keyframes[folder.len()];
@@ -474,15 +517,7 @@ pub fn extract(
             ),
         });
     }
-    let keyframes = folder.finish()?;
-    Ok(Summary {
-        format,
-        image_source: image_topic,
-        pose_source,
-        images: plan.images,
-        without_pose: plan.without_pose,
-        keyframes,
-    })
+    folder.finish()
 }
 
 /// A keyframe's image from its message: compressed bytes as they are,
