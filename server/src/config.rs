@@ -11,7 +11,7 @@ use figment::providers::{Env, Format, Serialized, Toml};
 use figment::Figment;
 use serde::{Deserialize, Serialize};
 
-use humem_core::vpr::VprParams;
+use humem_core::vpr::params::VprParams;
 use humem_perception::config::PerceptionConfig;
 use humem_store::FileRule;
 
@@ -232,7 +232,7 @@ pub const AUTO_FILE_MIN_BYTES: u64 = 1 << 30;
 impl StoreConfig {
     /// When the descriptors leave memory under `scan` (None: never), for
     /// [`humem_store::StoreOptions`].
-    pub fn descriptors_to_file(&self, scan: humem_core::vpr::ScanMode) -> Option<FileRule> {
+    pub fn descriptors_to_file(&self, scan: humem_core::vpr::params::ScanMode) -> Option<FileRule> {
         match self.descriptors {
             DescriptorStorage::Auto => {
                 humem_core::vpr::scan::codes_first_from(scan).map(|min_keyframes| FileRule {
@@ -355,7 +355,7 @@ impl Config {
         // for the clients, HUMEM_BIN names the binary for test scripts and
         // HUMEM_ORT_PACKAGE is read by scripts/setup-models.sh, and
         // HUMEM_CODE_KERNEL picks a slower scan kernel for benchmarks
-        // (humem_core::vpr::kernels): none is a setting.
+        // (humem_core::engine::kernels): none is a setting.
         const NOT_SETTINGS: [&str; 10] = [
             "config",
             "server_url",
@@ -450,8 +450,8 @@ mod tests {
 
     #[test]
     fn where_the_descriptors_live_follows_the_scan() {
+        use humem_core::vpr::params::ScanMode;
         use humem_core::vpr::scan::{codes_first_from, COMPRESSED_MIN_ROWS};
-        use humem_core::vpr::ScanMode;
         let dir = tempfile::tempdir().unwrap();
         let file = dir.path().join("humem.toml");
         let load = |text: &str| {

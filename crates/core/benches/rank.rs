@@ -18,7 +18,11 @@ use humem_core::index::Index;
 use humem_core::keyframe::{
     Features, KeyframeKey, ObjectObservation, Pose, SceneClass, SemanticKeyframe, TextObservation,
 };
-use humem_core::vpr::{self, KeyframeMemory, Layers, QueryObservation, ScalQuery, VprParams};
+use humem_core::vpr;
+use humem_core::vpr::memory::KeyframeMemory;
+use humem_core::vpr::params::{Layers, VprParams};
+use humem_core::vpr::rank::QueryObservation;
+use humem_core::vpr::scal::ScalQuery;
 
 struct Rng(u64);
 
@@ -105,7 +109,7 @@ fn bench(c: &mut Criterion) {
                 let q = &history[0].descriptor;
                 let mut best = f32::MIN;
                 for row in 0..m.len() {
-                    best = best.max(vpr::dot(q, &m.row(row)));
+                    best = best.max(humem_core::engine::matrix::dot(q, &m.row(row)));
                 }
                 black_box(best)
             })
@@ -114,13 +118,13 @@ fn bench(c: &mut Criterion) {
             let query = ScalQuery {
                 history: refs.clone(),
             };
-            b.iter(|| black_box(vpr::scal_scores(&params, &query, &index, &all)))
+            b.iter(|| black_box(vpr::scan::scal_scores(&params, &query, &index, &all)))
         });
         group.bench_function(BenchmarkId::from_parameter("rank_full"), |b| {
             let query = QueryObservation {
                 history: refs.clone(),
             };
-            b.iter(|| black_box(vpr::rank(&params, Layers::FULL, &query, &index, &all)))
+            b.iter(|| black_box(vpr::rank::rank(&params, Layers::FULL, &query, &index, &all)))
         });
         group.finish();
     }

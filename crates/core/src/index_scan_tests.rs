@@ -4,11 +4,14 @@
 
 use proptest::prelude::*;
 
+use crate::engine::filter::RowFilter;
 use crate::index::Index;
 use crate::keyframe::{Features, KeyframeKey, Pose, SceneClass, SemanticKeyframe, SessionKey};
 use crate::vpr::eligibility::{QueryContext, Scope};
+use crate::vpr::params::{ScanMode, VprParams};
+use crate::vpr::scal::ScalQuery;
+use crate::vpr::scan::{scal_scan, ScalScan};
 use crate::vpr::testing::{scene_strategy, scope_strategy, unit_vector};
-use crate::vpr::{scal_scan, RowFilter, ScalQuery, ScalScan, ScanMode, VprParams};
 
 const ROBOTS: &[&str] = &["r0", "r1", "r2", "r3", "r4", "r5"];
 const SESSIONS: &[&str] = &["s0", "s1"];

@@ -16,7 +16,8 @@ use crate::proto;
 use humem_core::keyframe::{
     Features, KeyframeKey, ObjectObservation, Pose, SceneClass, SessionKey, TextObservation,
 };
-use humem_core::vpr::{Layers, MapRef, Scope};
+use humem_core::vpr::eligibility::{MapRef, Scope};
+use humem_core::vpr::params::Layers;
 use humem_perception::ImageInput;
 use humem_store::{PoseUpdate, RelativeTransform, Verdict, VerificationKind};
 

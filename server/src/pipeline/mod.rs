@@ -25,7 +25,7 @@ use std::time::Duration;
 
 use humem_cluster::{ClusterError, Replica};
 use humem_core::keyframe::{Features, SemanticKeyframe, SessionKey};
-use humem_core::vpr::VprParams;
+use humem_core::vpr::params::VprParams;
 use humem_perception::{Perception, PerceptionError};
 use humem_store::{Mutation, MutationOutcome, Store, StoreError};
 

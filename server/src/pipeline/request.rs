@@ -3,7 +3,8 @@
 //! messages; the pipeline consumes them and never sees a protobuf type.
 
 use humem_core::keyframe::{Features, KeyframeKey, Pose, SemanticKeyframe, SessionKey};
-use humem_core::vpr::{Layers, Scope};
+use humem_core::vpr::eligibility::Scope;
+use humem_core::vpr::params::Layers;
 use humem_perception::ImageInput;
 
 /// A request field that is wrong, and why.
