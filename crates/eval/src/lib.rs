@@ -24,17 +24,17 @@
 //! - [`text_recall`]: how often OCR reads the signs in view (`humem text-recall`);
 //! - [`verdict_replay`]: the stream replayed with the ground truth as
 //!   geometric verification, without and with verdicts (`--replay-verdicts`);
-//! - [`bench`]: time per model and batch size (`humem bench perception`);
+//! - [`perception_bench`]: time per model and batch size (`humem bench perception`);
 //! - [`verdict_bench`]: what stored verdicts add to a query's cost
 //!   (`humem bench verdicts`).
 
 pub mod annotations;
 pub mod baseline;
-pub mod bench;
 pub mod dataset;
 pub mod degrade;
 pub mod ingest;
 pub mod metrics;
+pub mod perception_bench;
 pub mod plots;
 pub mod precision;
 pub mod remote;
@@ -46,3 +46,8 @@ pub mod text_recall;
 pub mod truth;
 pub mod verdict_bench;
 pub mod verdict_replay;
+
+/// `humem bench perception`'s old path: the binary's `main.rs` still calls
+/// `humem_eval::bench::perception`.
+#[doc(hidden)]
+pub use perception_bench as bench;

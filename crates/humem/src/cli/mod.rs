@@ -145,7 +145,7 @@ pub enum Command {
 pub enum BenchCommand {
     /// The perception models: latency per batch size, and the throughput
     /// gain of batching under concurrent clients against unbatched inference.
-    Perception(humem_eval::bench::PerceptionBench),
+    Perception(humem_eval::perception_bench::PerceptionBench),
     /// A SCAL-only query on large synthetic stores (100k and 1M keyframes by
     /// default) against an exact f32 dot-product scan, on one core and all.
     Scan(humem_eval::scan_bench::ScanBench),
