@@ -497,24 +497,39 @@ fn print_scoped(args: &ScanBench, state: &str, table: &[ScopedRow]) {
     }
 }
 
-/// Runs the benchmark and prints the table.
-pub fn scan(config: Config, args: ScanBench) -> anyhow::Result<()> {
-    ensure!(args.queries > 0, "--queries must be at least 1");
-    ensure!(args.robots > 0, "--robots must be at least 1");
-    ensure!(args.dim > 0, "--dim must be at least 1");
-    let threads = rayon::current_num_threads();
-    let one_core = rayon::ThreadPoolBuilder::new()
-        .num_threads(1)
-        .build()
-        .context("building a one-thread pool")?;
-    let params = |scan| VprParams {
-        scan,
-        ..config.vpr.clone()
-    };
-    let (exact, compressed) = (params(ScanMode::Exact), params(ScanMode::Compressed));
-    let k = config.vpr.top_k;
-    let mut table = Vec::new();
-    for &rows in &args.rows {
+/// The query configurations every store size is measured with: the exact
+/// and the compressed pass, on one core (`one_core`) or on every core.
+struct Passes {
+    one_core: rayon::ThreadPool,
+    exact: VprParams,
+    compressed: VprParams,
+    k: usize,
+}
+
+/// Times of the passes with the f32 rows in memory, the first two
+/// (warm-up) queries left out.
+struct MemoryPass {
+    flat: Vec<Duration>,
+    exact: Vec<Duration>,
+    compressed_one: Vec<Duration>,
+    compressed_all: Vec<Duration>,
+    /// Queries whose compressed answers equal the exact pass's.
+    identical: usize,
+    /// The exact pass's answer to every query, warm-ups included.
+    exact_answers: Vec<Vec<(KeyframeKey, f32)>>,
+}
+
+/// Times of the compressed pass with the f32 rows in a file.
+struct FilePass {
+    one: Vec<Duration>,
+    all: Vec<Duration>,
+    /// Queries whose answers equal the exact pass's (rows in memory).
+    identical: usize,
+}
+
+impl Passes {
+    /// Builds a store of `rows` keyframes and measures every pass on it.
+    fn measure(&self, args: &ScanBench, rows: usize) -> anyhow::Result<Row> {
         eprintln!("bench scan: building a store of {rows} x {}", args.dim);
         let resident_before = resident_bytes();
         let started = Instant::now();
@@ -532,40 +547,7 @@ pub fn scan(config: Config, args: ScanBench) -> anyhow::Result<()> {
         let ids: Vec<u64> = (0..args.queries + 2)
             .map(|_| 2 + rng.next() % (per_robot - 2))
             .collect();
-        let (mut flat, mut exact_t, mut one_t, mut all_t) = (vec![], vec![], vec![], vec![]);
-        let mut identical = 0;
-        let mut exact_answers = Vec::new();
-        // The first two queries warm caches and are not timed.
-        for (n, &id) in ids.iter().enumerate() {
-            let spec = spec(id, k);
-            let key = spec.session.keyframe(id);
-            let row = index.row_of(&key).context("query keyframe stored")?;
-            let q = index.descriptor(row).to_vec();
-            let (flat_time, top) = one_core.install(|| timed(|| flat_scan(&index, &q, k)));
-            std::hint::black_box(&top);
-            let mut outcomes = Vec::new();
-            for (pool_one, p) in [(true, &exact), (true, &compressed), (false, &compressed)] {
-                let run = || query::run(&index, p, &spec);
-                let (t, outcome) = if pool_one {
-                    one_core.install(|| timed(run))
-                } else {
-                    timed(run)
-                };
-                let outcome = outcome.map_err(|e| anyhow::anyhow!("query {id}: {e:?}"))?;
-                outcomes.push((t, answer(&outcome)));
-            }
-            exact_answers.push(outcomes[0].1.clone());
-            if n < 2 {
-                continue;
-            }
-            flat.push(flat_time);
-            exact_t.push(outcomes[0].0);
-            one_t.push(outcomes[1].0);
-            all_t.push(outcomes[2].0);
-            if outcomes[1].1 == outcomes[0].1 && outcomes[2].1 == outcomes[0].1 {
-                identical += 1;
-            }
-        }
+        let memory = self.memory_pass(&index, &ids)?;
 
         // The same compressed queries with the f32 rows moved to a file,
         // as `store.descriptors = "auto"` does in the server.
@@ -578,11 +560,93 @@ pub fn scan(config: Config, args: ScanBench) -> anyhow::Result<()> {
             .move_descriptors_to_file(dir.path())
             .context("moving the descriptors to a file")?;
         let file_per_keyframe = added_per_keyframe();
-        let (mut file_one, mut file_all, mut file_identical) = (vec![], vec![], 0);
-        for (n, (&id, exact)) in ids.iter().zip(&exact_answers).enumerate() {
+        let file = self.file_pass(&index, &ids, &memory.exact_answers)?;
+        let row = Row {
+            rows,
+            build,
+            flat: median_ms(&memory.flat),
+            exact: median_ms(&memory.exact),
+            compressed_one: median_ms(&memory.compressed_one),
+            compressed_all: median_ms(&memory.compressed_all),
+            identical: memory.identical,
+            queries: args.queries,
+            per_keyframe,
+            file_one: median_ms(&file.one),
+            file_all: median_ms(&file.all),
+            file_identical: file.identical,
+            file_per_keyframe,
+        };
+        drop(index);
+        Ok(row)
+    }
+
+    /// The flat scan, the exact pass on one core and the compressed pass on
+    /// one and on every core, for each query of `ids`; the first two queries
+    /// warm caches and are not timed.
+    fn memory_pass(&self, index: &Index, ids: &[u64]) -> anyhow::Result<MemoryPass> {
+        let k = self.k;
+        let mut pass = MemoryPass {
+            flat: vec![],
+            exact: vec![],
+            compressed_one: vec![],
+            compressed_all: vec![],
+            identical: 0,
+            exact_answers: Vec::new(),
+        };
+        for (n, &id) in ids.iter().enumerate() {
             let spec = spec(id, k);
-            let run = || query::run(&index, &compressed, &spec);
-            let (one, a) = one_core.install(|| timed(run));
+            let key = spec.session.keyframe(id);
+            let row = index.row_of(&key).context("query keyframe stored")?;
+            let q = index.descriptor(row).to_vec();
+            let (flat_time, top) = self.one_core.install(|| timed(|| flat_scan(index, &q, k)));
+            std::hint::black_box(&top);
+            let mut outcomes = Vec::new();
+            for (pool_one, p) in [
+                (true, &self.exact),
+                (true, &self.compressed),
+                (false, &self.compressed),
+            ] {
+                let run = || query::run(index, p, &spec);
+                let (t, outcome) = if pool_one {
+                    self.one_core.install(|| timed(run))
+                } else {
+                    timed(run)
+                };
+                let outcome = outcome.map_err(|e| anyhow::anyhow!("query {id}: {e:?}"))?;
+                outcomes.push((t, answer(&outcome)));
+            }
+            pass.exact_answers.push(outcomes[0].1.clone());
+            if n < 2 {
+                continue;
+            }
+            pass.flat.push(flat_time);
+            pass.exact.push(outcomes[0].0);
+            pass.compressed_one.push(outcomes[1].0);
+            pass.compressed_all.push(outcomes[2].0);
+            if outcomes[1].1 == outcomes[0].1 && outcomes[2].1 == outcomes[0].1 {
+                pass.identical += 1;
+            }
+        }
+        Ok(pass)
+    }
+
+    /// The compressed pass on one and on every core, its answers checked
+    /// against `exact_answers`; the first two queries are not timed.
+    fn file_pass(
+        &self,
+        index: &Index,
+        ids: &[u64],
+        exact_answers: &[Vec<(KeyframeKey, f32)>],
+    ) -> anyhow::Result<FilePass> {
+        let mut pass = FilePass {
+            one: vec![],
+            all: vec![],
+            identical: 0,
+        };
+        for (n, (&id, exact)) in ids.iter().zip(exact_answers).enumerate() {
+            let spec = spec(id, self.k);
+            let run = || query::run(index, &self.compressed, &spec);
+            let (one, a) = self.one_core.install(|| timed(run));
             let (all, b) = timed(run);
             let (a, b) = (
                 a.map_err(|e| anyhow::anyhow!("query {id}: {e:?}"))?,
@@ -591,29 +655,19 @@ pub fn scan(config: Config, args: ScanBench) -> anyhow::Result<()> {
             if n < 2 {
                 continue;
             }
-            file_one.push(one);
-            file_all.push(all);
+            pass.one.push(one);
+            pass.all.push(all);
             if &answer(&a) == exact && &answer(&b) == exact {
-                file_identical += 1;
+                pass.identical += 1;
             }
         }
-        table.push(Row {
-            rows,
-            build,
-            flat: median_ms(&flat),
-            exact: median_ms(&exact_t),
-            compressed_one: median_ms(&one_t),
-            compressed_all: median_ms(&all_t),
-            identical,
-            queries: args.queries,
-            per_keyframe,
-            file_one: median_ms(&file_one),
-            file_all: median_ms(&file_all),
-            file_identical,
-            file_per_keyframe,
-        });
-        drop(index);
+        Ok(pass)
     }
+}
+
+/// Prints the tables of every store size: the rows in memory, then in a
+/// file.
+fn print_table(args: &ScanBench, table: &[Row], k: usize, threads: usize) {
     println!(
         "SCAL-only query, {}-d, top {k}, median of {} queries, code kernel {}; ratios against the exact f32 scan on 1 core",
         args.dim,
@@ -624,7 +678,7 @@ pub fn scan(config: Config, args: ScanBench) -> anyhow::Result<()> {
         "| keyframes | exact f32 scan, 1 core | HuMem exact, 1 core | HuMem compressed, 1 core | HuMem compressed, {threads} cores | same answers as exact | resident per keyframe | store built in |"
     );
     println!("| --- | --- | --- | --- | --- | --- | --- | --- |");
-    for r in &table {
+    for r in table {
         println!(
             "| {} | {:.1} ms | {:.1} ms ({:.2}x) | {:.1} ms ({:.2}x) | {:.1} ms ({:.2}x) | {}/{} | {} | {:.0} s |",
             r.rows,
@@ -647,7 +701,7 @@ pub fn scan(config: Config, args: ScanBench) -> anyhow::Result<()> {
         "| keyframes | HuMem compressed, 1 core | HuMem compressed, {threads} cores | same answers as exact | resident per keyframe |"
     );
     println!("| --- | --- | --- | --- | --- |");
-    for r in &table {
+    for r in table {
         println!(
             "| {} | {:.1} ms ({:.2}x) | {:.1} ms ({:.2}x) | {}/{} | {} |",
             r.rows,
@@ -660,6 +714,33 @@ pub fn scan(config: Config, args: ScanBench) -> anyhow::Result<()> {
             per_keyframe_cell(r.file_per_keyframe, args.dim),
         );
     }
+}
+
+/// Runs the benchmark and prints the table.
+pub fn scan(config: Config, args: ScanBench) -> anyhow::Result<()> {
+    ensure!(args.queries > 0, "--queries must be at least 1");
+    ensure!(args.robots > 0, "--robots must be at least 1");
+    ensure!(args.dim > 0, "--dim must be at least 1");
+    let threads = rayon::current_num_threads();
+    let one_core = rayon::ThreadPoolBuilder::new()
+        .num_threads(1)
+        .build()
+        .context("building a one-thread pool")?;
+    let params = |scan| VprParams {
+        scan,
+        ..config.vpr.clone()
+    };
+    let passes = Passes {
+        one_core,
+        exact: params(ScanMode::Exact),
+        compressed: params(ScanMode::Compressed),
+        k: config.vpr.top_k,
+    };
+    let mut table = Vec::new();
+    for &rows in &args.rows {
+        table.push(passes.measure(&args, rows)?);
+    }
+    print_table(&args, &table, passes.k, threads);
     if args.scoped_robots > 0 {
         for (state, table) in scoped(&config, &args)? {
             print_scoped(&args, &state, &table);
