@@ -9,7 +9,7 @@ use std::time::Duration;
 
 use prometheus::{Histogram, HistogramOpts, HistogramVec, IntCounter, IntGauge, Opts};
 
-use super::{latency_buckets, register};
+use super::registry::{latency_buckets, register};
 
 /// Entries in the stream after this replica's position.
 pub static LAG: LazyLock<IntGauge> = LazyLock::new(|| {

@@ -8,19 +8,25 @@
 //! bytes on disk) are computed when scraped. The exposition is the
 //! `prometheus` crate's text encoder, served over HTTP by axum. The
 //! cluster-mode metrics, fed by the replica's observer, are in [`cluster`].
+//! The registry itself and the helpers both use are in [`registry`], a
+//! leaf, so that [`cluster`] does not reach up into this module.
 
 pub mod cluster;
+pub mod registry;
 
 use std::net::SocketAddr;
 use std::sync::LazyLock;
 
 use prometheus::{
     Encoder, Gauge, GaugeVec, HistogramOpts, HistogramVec, IntCounter, IntCounterVec, IntGauge,
-    IntGaugeVec, Opts, Registry, TextEncoder,
+    IntGaugeVec, Opts, TextEncoder,
 };
 
 use humem_core::observe::{QueueObserver, SharedObserver};
 use humem_store::{IndexSource, Store};
+
+pub use registry::REGISTRY;
+use registry::{latency_buckets, register};
 
 /// The API's methods, as the `rpc` label of every per-RPC metric.
 pub const RPCS: [&str; 9] = [
@@ -34,26 +40,6 @@ pub const RPCS: [&str; 9] = [
     "Stats",
     "ReportVerification",
 ];
-
-/// The registry every HuMem metric is in.
-pub static REGISTRY: LazyLock<Registry> = LazyLock::new(Registry::new);
-
-fn register<C: prometheus::core::Collector + Clone + 'static>(collector: C) -> C {
-    REGISTRY
-        .register(Box::new(collector.clone()))
-        .expect("metric names are unique");
-    collector
-}
-
-/// Latency buckets from 250 µs to 10 s, with edges at the budgets a SLAM
-/// operator sets (e.g. 100 ms per frame, 250 ms per query) so quantiles near
-/// them are not smeared over a wide bucket.
-fn latency_buckets() -> Vec<f64> {
-    vec![
-        0.00025, 0.0005, 0.001, 0.0025, 0.005, 0.01, 0.025, 0.05, 0.1, 0.15, 0.25, 0.5, 1.0, 2.5,
-        5.0, 10.0,
-    ]
-}
 
 /// Always 1, labelled with the server's version, to tell a fleet's
 /// sidecars apart.
@@ -99,7 +85,7 @@ pub static STAGE_DURATION: LazyLock<HistogramVec> = LazyLock::new(|| {
         HistogramVec::new(
             HistogramOpts::new(
                 "humem_stage_duration_seconds",
-                "time per request in each stage: decode, descriptor, scene, detector, ocr_det, ocr_rec, scal, osrl, ogtl, fusion",
+                "time per request in each stage: decode, descriptor, scene, detector, ocr_det, ocr_rec, scal, osrl, ogtl, fusion, rules",
             )
             .buckets(latency_buckets()),
             &["stage"],
