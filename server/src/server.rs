@@ -1,6 +1,12 @@
 //! `humem serve`: opens the store, starts the gRPC server with the standard
 //! health and reflection services, and shuts down cleanly on SIGINT/SIGTERM
 //! (stop accepting, let in-flight requests finish, flush the store).
+//!
+//! [`serve_watching`] runs the stages in order, each a function with one
+//! job: open the store, the models, the authenticator and the pipeline
+//! (`open`), build the router and serve until stopped
+//! (`serve_until_stopped`, with the metrics endpoint, the bind and the
+//! replica's readiness watch beside it), and shut down (`shut_down`).
 
 use anyhow::Context;
 use tokio::net::TcpListener;
@@ -8,11 +14,15 @@ use tonic::transport::server::TcpIncoming;
 
 use crate::api::validate::Limits;
 use crate::api::PlaceRecognitionService;
+use crate::auth::Authenticator;
 use crate::config::Config;
 use crate::metrics;
 use crate::pipeline::admission::QueryAdmission;
 use crate::pipeline::latest_wins::LatestWins;
+use crate::pipeline::Pipeline;
 use crate::proto::place_recognition_server::PlaceRecognitionServer;
+use crate::tls::ReloadingTls;
+use humem_cluster::Replica;
 use humem_perception::Perception;
 use humem_store::{Store, StoreOptions};
 
@@ -29,6 +39,33 @@ pub async fn serve_watching(
     config: Config,
     rules_file: Option<(std::path::PathBuf, crate::auth::RulesSource)>,
 ) -> anyhow::Result<()> {
+    let Opened {
+        store,
+        pipeline,
+        auth,
+        replica,
+    } = open(&config, rules_file).await?;
+    serve_until_stopped(&config, &store, pipeline, &auth, replica.clone()).await?;
+    shut_down(&store, replica.as_ref()).await
+}
+
+/// What the service runs on, once opened.
+struct Opened {
+    store: Store,
+    pipeline: Pipeline,
+    auth: Authenticator,
+    /// This server's replica of the cluster, in cluster mode.
+    replica: Option<Replica>,
+}
+
+/// Opens the store and loads the models side by side, starts the
+/// authenticator, joins the cluster in cluster mode, and builds the
+/// request pipeline on them. Refuses a configuration that would expose
+/// the service, or a descriptor model the store cannot hold.
+async fn open(
+    config: &Config,
+    rules_file: Option<(std::path::PathBuf, crate::auth::RulesSource)>,
+) -> anyhow::Result<Opened> {
     std::fs::create_dir_all(&config.store.data_dir).with_context(|| {
         format!(
             "creating data directory {}",
@@ -57,7 +94,7 @@ pub async fn serve_watching(
     // Cluster mode: a store the write log no longer reaches (new, or away
     // longer than the log keeps entries) starts from the newest snapshot.
     if config.cluster.enabled {
-        check_nats_exposure(&config)?;
+        check_nats_exposure(config)?;
         humem_cluster::snapshots::restore_if_behind(
             &config.cluster,
             &config.store.data_dir,
@@ -70,56 +107,20 @@ pub async fn serve_watching(
     let opening = tokio::task::spawn_blocking(move || {
         Store::open_with(&data_dir, store_options, metrics::queue_observer())
     });
-
-    let limits = Limits {
-        scene_top_k: config.store.scene_top_k,
-        min_frame_gap: config.query.min_frame_gap,
-        top_n: config.vpr.max_candidates,
-    };
-    let perception = if config.perception.enabled {
-        let perception_config = config.perception.clone();
-        let top_k = config.store.scene_top_k;
-        let perception = tokio::task::spawn_blocking(move || {
-            Perception::load_observed(&perception_config, top_k, metrics::queue_observer())
-        })
-            .await
-            .context("loading the perception models")?
-            .context("loading the perception models (`humem models check` shows what each model takes and gives; perception.enabled = false serves precomputed features only)")?;
-        Some(perception)
-    } else {
-        tracing::warn!("perception disabled: requests with images will be refused");
-        None
-    };
+    let perception = load_perception(config).await?;
     let store = opening
         .await
         .context("opening the store")?
         .with_context(|| format!("opening the store in {}", config.store.data_dir.display()))?;
     if let Some(perception) = &perception {
-        descriptor_fits_store(perception, &config, store.index().dim())?;
+        descriptor_fits_store(perception, config, store.index().dim())?;
     }
-    let auth = crate::auth::Authenticator::start(&config.auth, &config.server.tls, rules_file)
+    let auth = Authenticator::start(&config.auth, &config.server.tls, rules_file)
         .context("loading the token file (auth.tokens_file)")?;
-    check_exposure(&config, auth.enabled())?;
+    check_exposure(config, auth.enabled())?;
     metrics::init();
-    // Cluster mode: join before serving, and serve only once this replica
-    // has applied every write the log held when it joined.
-    let replica = if config.cluster.enabled {
-        let replica = humem_cluster::Replica::start(
-            config.cluster.clone(),
-            store.clone(),
-            std::sync::Arc::new(metrics::cluster::PrometheusCluster),
-        )
-        .await
-        .context("joining the cluster (cluster.*)")?;
-        replica
-            .catch_up()
-            .await
-            .context("catching up with the write log")?;
-        Some(replica)
-    } else {
-        None
-    };
-    let pipeline = crate::pipeline::Pipeline::new(
+    let replica = join_cluster(config, &store).await?;
+    let pipeline = Pipeline::new(
         store.clone(),
         config.vpr.clone(),
         perception,
@@ -131,6 +132,65 @@ pub async fn serve_watching(
         replica.clone(),
     )
     .with_keyframe_quota(config.quotas.max_keyframes_per_robot);
+    Ok(Opened {
+        store,
+        pipeline,
+        auth,
+        replica,
+    })
+}
+
+/// The perception models, loaded on the blocking pool; `None` when
+/// perception is disabled.
+async fn load_perception(config: &Config) -> anyhow::Result<Option<Perception>> {
+    if !config.perception.enabled {
+        tracing::warn!("perception disabled: requests with images will be refused");
+        return Ok(None);
+    }
+    let perception_config = config.perception.clone();
+    let top_k = config.store.scene_top_k;
+    let perception = tokio::task::spawn_blocking(move || {
+        Perception::load_observed(&perception_config, top_k, metrics::queue_observer())
+    })
+        .await
+        .context("loading the perception models")?
+        .context("loading the perception models (`humem models check` shows what each model takes and gives; perception.enabled = false serves precomputed features only)")?;
+    Ok(Some(perception))
+}
+
+/// Cluster mode: joins before serving, and returns only once this replica
+/// has applied every write the log held when it joined. `None` outside
+/// cluster mode.
+async fn join_cluster(config: &Config, store: &Store) -> anyhow::Result<Option<Replica>> {
+    if !config.cluster.enabled {
+        return Ok(None);
+    }
+    let replica = Replica::start(
+        config.cluster.clone(),
+        store.clone(),
+        std::sync::Arc::new(metrics::cluster::PrometheusCluster),
+    )
+    .await
+    .context("joining the cluster (cluster.*)")?;
+    replica
+        .catch_up()
+        .await
+        .context("catching up with the write log")?;
+    Ok(Some(replica))
+}
+
+/// The API service on `pipeline`, with the request limits and the access
+/// policy, as a gRPC server of the configured message size.
+fn api_server(
+    config: &Config,
+    pipeline: Pipeline,
+    auth: &Authenticator,
+) -> PlaceRecognitionServer<PlaceRecognitionService> {
+    let limits = Limits {
+        scene_top_k: config.store.scene_top_k,
+        min_frame_gap: config.query.min_frame_gap,
+        top_n: config.vpr.max_candidates,
+    };
     let service = PlaceRecognitionService::new(
         pipeline,
         limits,
@@ -140,10 +200,22 @@ pub async fn serve_watching(
         },
     );
     let max = config.server.max_message_bytes;
-    let api = PlaceRecognitionServer::new(service)
+    PlaceRecognitionServer::new(service)
         .max_decoding_message_size(max)
-        .max_encoding_message_size(max);
+        .max_encoding_message_size(max)
+}
 
+/// Builds the gRPC router (the API, health and reflection), records the
+/// store in the metrics and starts their endpoint, binds the port and
+/// serves until a stop signal, then lets in-flight requests finish.
+async fn serve_until_stopped(
+    config: &Config,
+    store: &Store,
+    pipeline: Pipeline,
+    auth: &Authenticator,
+    replica: Option<Replica>,
+) -> anyhow::Result<()> {
+    let api = api_server(config, pipeline, auth);
     let (health, health_service) = tonic_health::server::health_reporter();
     health
         .set_serving::<PlaceRecognitionServer<PlaceRecognitionService>>()
@@ -163,14 +235,14 @@ pub async fn serve_watching(
         .build_v1alpha()
         .context("building the reflection service (v1alpha)")?;
 
-    metrics::store_opened(&store);
+    let (stop_tx, stop_rx) = tokio::sync::watch::channel(false);
+    // True from the moment the gRPC port is open until shutdown begins.
+    let (serving_tx, serving_rx) = tokio::sync::watch::channel(false);
+    metrics::store_opened(store);
     let point = store
         .index()
         .operating_point(&config.vpr, humem_core::verdict::unix_now());
     metrics::OPERATING_THRESHOLD.set(f64::from(point.threshold));
-    let (stop_tx, stop_rx) = tokio::sync::watch::channel(false);
-    // True from the moment the gRPC port is open until shutdown begins.
-    let (serving_tx, serving_rx) = tokio::sync::watch::channel(false);
     if config.metrics.enabled {
         let mut stop = stop_rx.clone();
         let addr = metrics::serve(
@@ -185,20 +257,7 @@ pub async fn serve_watching(
         tracing::info!(%addr, "metrics on /metrics");
         println!("humem metrics on {addr}");
     }
-
-    // TLS first: a certificate that cannot be loaded stops the start
-    // before the port is bound.
-    let tls = if config.server.tls.enabled() {
-        Some(
-            crate::tls::ReloadingTls::start(config.server.tls.clone())
-                .context("loading the TLS certificate (server.tls)")?,
-        )
-    } else {
-        None
-    };
-    let listener = TcpListener::bind(config.server.listen)
-        .await
-        .with_context(|| format!("binding {}", config.server.listen))?;
+    let (listener, tls) = bind(config).await?;
     let local = listener.local_addr()?;
     tracing::info!(
         %local,
@@ -213,22 +272,8 @@ pub async fn serve_watching(
     // One plain line on stdout, for scripts and tests that asked for port 0.
     println!("humem listening on {local}");
     let _ = serving_tx.send(true);
-    // A replica that stopped applying the log answers from a store that
-    // grows stale: it is no longer ready, so a load balancer moves on.
-    if let Some(replica) = replica.clone() {
-        let serving = serving_tx.clone();
-        tokio::spawn(async move {
-            loop {
-                tokio::time::sleep(std::time::Duration::from_secs(1)).await;
-                if replica.halted().is_some() {
-                    let _ = serving.send(false);
-                    return;
-                }
-                if serving.is_closed() {
-                    return;
-                }
-            }
-        });
+    if let Some(replica) = replica {
+        unready_when_halted(replica, serving_tx.clone());
     }
 
     let router = tonic::transport::Server::builder()
@@ -268,8 +313,49 @@ pub async fn serve_watching(
         }
     }
     .context("running the gRPC server")?;
+    Ok(())
+}
 
-    if let Some(replica) = &replica {
+/// Loads the TLS certificate where configured and binds the gRPC port.
+/// TLS first: a certificate that cannot be loaded stops the start before
+/// the port is bound.
+async fn bind(config: &Config) -> anyhow::Result<(TcpListener, Option<ReloadingTls>)> {
+    let tls = if config.server.tls.enabled() {
+        Some(
+            ReloadingTls::start(config.server.tls.clone())
+                .context("loading the TLS certificate (server.tls)")?,
+        )
+    } else {
+        None
+    };
+    let listener = TcpListener::bind(config.server.listen)
+        .await
+        .with_context(|| format!("binding {}", config.server.listen))?;
+    Ok((listener, tls))
+}
+
+/// A replica that stopped applying the log answers from a store that
+/// grows stale: it is no longer ready, so a load balancer moves on. Checks
+/// every second until then, or until the server stops.
+fn unready_when_halted(replica: Replica, serving: tokio::sync::watch::Sender<bool>) {
+    tokio::spawn(async move {
+        loop {
+            tokio::time::sleep(std::time::Duration::from_secs(1)).await;
+            if replica.halted().is_some() {
+                let _ = serving.send(false);
+                return;
+            }
+            if serving.is_closed() {
+                return;
+            }
+        }
+    });
+}
+
+/// After the server stopped: leaves the cluster, flushes the store, and
+/// writes an index snapshot (only logged when it fails).
+async fn shut_down(store: &Store, replica: Option<&Replica>) -> anyhow::Result<()> {
+    if let Some(replica) = replica {
         replica.shutdown().await;
     }
     store.flush().context("flushing the store at shutdown")?;
