@@ -1,0 +1,167 @@
+//! The second stage of the writer, the publisher: takes each group that
+//! is durable in sled into the in-memory index, then answers its callers.
+//!
+//! It has a thread of its own because it must wait for the index's write
+//! lock, which every running scan holds for reading: on its own thread
+//! that wait overlaps the writer staging and flushing the next group
+//! instead of adding to every insert's latency. Being the index's only
+//! writer, it also regroups the index's rows by map when that is due.
+
+use std::sync::atomic::{AtomicU64, Ordering};
+use std::sync::Arc;
+
+use humem_core::index::{Index, RowGrouping};
+use parking_lot::RwLock;
+
+use super::queue::{LogReply, Reply};
+use super::staging::IndexChange;
+use crate::checkpoint::Checkpoints;
+use crate::error::StoreError;
+use crate::mutation::{LogApplied, MutationOutcome};
+use crate::placement::DescriptorPlacement;
+
+/// A job's answer, sent after its group's flush.
+pub(super) enum Answer {
+    Change(Reply, Result<MutationOutcome, StoreError>),
+    Log(LogReply, LogApplied),
+}
+
+/// A group that is durable in sled, waiting to be published to the index.
+pub(super) struct Published {
+    pub(super) changes: Vec<IndexChange>,
+    pub(super) answers: Vec<Answer>,
+    /// The last write sequence of the group.
+    pub(super) sequence: u64,
+    /// Journal keys the group wrote.
+    pub(super) journaled: u64,
+}
+
+/// Groups flushed but not yet published, at most: the writer flushes the
+/// next group while the publisher waits for the index, and blocks when
+/// this many are behind, so memory stays bounded.
+pub(super) const PUBLISH_BACKLOG: usize = 2;
+
+/// The second stage of the writer: takes each flushed group, in order,
+/// into the in-memory index under its write lock, and only then answers
+/// its callers. Waiting for the write lock means waiting out the scans
+/// that hold the read lock; on its own thread, that wait overlaps the
+/// writer staging and flushing the next group instead of adding to it.
+pub(super) struct Publisher {
+    pub(super) index: Arc<RwLock<Index>>,
+    /// The sequence the index reflects, published with each group.
+    pub(super) applied: Arc<AtomicU64>,
+    pub(super) checkpoints: Arc<Checkpoints>,
+    /// Moves the descriptors out of memory once the store is large.
+    pub(super) placement: Arc<DescriptorPlacement>,
+}
+
+impl Publisher {
+    /// Groups the index's newest rows by map once enough have come
+    /// ([`Index::group_tail_if_due`]), then sorts again at most one window
+    /// of older rows that erasures have scattered
+    /// ([`Index::regroup_window_if_due`]), unless a snapshot is being
+    /// written: it reads the rows in pieces and relies on them not moving.
+    /// The new order and the copies of the rows are made under the read
+    /// lock, while queries go on; only putting them in place takes the
+    /// write lock. This thread is the index's only writer, so nothing
+    /// changes in between (and a plan that found a change would do
+    /// nothing).
+    fn group_rows(&self) {
+        let (tail_due, window_due) = {
+            let index = self.index.read();
+            (
+                index.ungrouped_rows() >= humem_core::index::GROUP_TAIL_ROWS,
+                index.window_due().is_some(),
+            )
+        };
+        if !tail_due && !window_due {
+            return;
+        }
+        let Some(_no_snapshot) = self.checkpoints.writing.try_lock() else {
+            return;
+        };
+        if tail_due {
+            self.apply_planned("grouped the newest rows by map", |index| {
+                index.plan_tail_grouping()
+            });
+        }
+        self.apply_planned("sorted again a window scattered by erasures", |index| {
+            index.plan_window_regrouping()
+        });
+    }
+
+    /// Plans a grouping under the read lock and applies it under the
+    /// write lock.
+    fn apply_planned(&self, what: &str, plan: impl FnOnce(&Index) -> Option<RowGrouping>) {
+        let started = std::time::Instant::now();
+        let Some(plan) = plan(&self.index.read()) else {
+            return;
+        };
+        let planned = started.elapsed();
+        let rows = self.index.write().apply_grouping(plan);
+        tracing::debug!(
+            rows,
+            planned_ms = planned.as_secs_f64() * 1e3,
+            applied_ms = (started.elapsed() - planned).as_secs_f64() * 1e3,
+            "{what}"
+        );
+    }
+
+    pub(super) fn run(self, groups: std::sync::mpsc::Receiver<Published>) {
+        for group in groups {
+            self.publish(group);
+        }
+    }
+
+    fn publish(&self, group: Published) {
+        let Published {
+            changes,
+            answers,
+            sequence,
+            journaled,
+        } = group;
+        let (store_keyframes, store_verdicts) = {
+            let mut index = self.index.write();
+            for change in changes {
+                match change {
+                    IndexChange::Upsert(kf) => {
+                        index.upsert(kf);
+                    }
+                    IndexChange::Remove(key) => {
+                        index.remove(&key);
+                    }
+                    IndexChange::Move(key, pose, map) => {
+                        index.update_pose(&key, pose, map);
+                    }
+                    IndexChange::Verdict(verdict) => {
+                        index.record_verdict(verdict);
+                    }
+                }
+            }
+            self.placement.apply(&mut index);
+            self.applied.store(sequence, Ordering::Release);
+            (index.len() as u64, index.verdicts().len() as u64)
+        };
+        self.checkpoints.journaled(journaled);
+        let counted = |outcome: Result<MutationOutcome, StoreError>| {
+            outcome.map(|mut o| {
+                o.store_keyframes = store_keyframes;
+                o.store_verdicts = store_verdicts;
+                o
+            })
+        };
+        for answer in answers {
+            match answer {
+                Answer::Change(reply, outcome) => {
+                    let _ = reply.send(counted(outcome));
+                }
+                Answer::Log(reply, mut applied) => {
+                    applied.results = applied.results.into_iter().map(counted).collect();
+                    let _ = reply.send(applied);
+                }
+            }
+        }
+        // After the answers: the callers do not wait for it.
+        self.group_rows();
+    }
+}
