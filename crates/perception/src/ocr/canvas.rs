@@ -8,6 +8,10 @@
 //! its input on padding for that camera and upscaled the rest by 1.25.
 //! Inputs of one camera share one shape, so they still batch together;
 //! the model runs one tensor per shape (see [`super::super::model`]).
+//!
+//! [`crop`], the pixels of a region, is here too: the region's input starts
+//! with it, and the parent module cuts text lines with it, so it sits in
+//! this child rather than the child reaching up for it.
 
 use image::RgbImage;
 
@@ -53,7 +57,7 @@ impl Placement {
 pub fn detector_input(image: &RgbImage, region: Rect, long_side: u32) -> (Planes, Placement) {
     let placement = Placement::new(region.width(), region.height(), long_side);
     let [fw, fh] = placement.scaled;
-    let resized = resize(&super::crop(image, region), fw, fh);
+    let resized = resize(&crop(image, region), fw, fh);
     let mut planes = Vec::with_capacity(3 * (fw * fh) as usize);
     append_chw(&resized, Channels::Bgr, MEAN, STD, &mut planes);
     let scaled = Planes {
@@ -81,6 +85,15 @@ pub fn padded(planes: &Planes, width: usize, height: usize) -> Planes {
         height,
         data,
     }
+}
+
+/// The pixels of `rect` (clamped) as an image.
+pub fn crop(image: &RgbImage, rect: Rect) -> RgbImage {
+    let x0 = rect.x0.max(0.0).floor() as u32;
+    let y0 = rect.y0.max(0.0).floor() as u32;
+    let x1 = (rect.x1.ceil() as u32).clamp(x0 + 1, image.width());
+    let y1 = (rect.y1.ceil() as u32).clamp(y0 + 1, image.height());
+    image::imageops::crop_imm(image, x0, y0, x1 - x0, y1 - y0).to_image()
 }
 
 #[cfg(test)]

@@ -9,6 +9,9 @@
 //! the widest, as PaddleOCR does. PaddleOCR's models were trained
 //! on OpenCV's BGR images with ImageNet normalisation for detection and
 //! `(v − 0.5) / 0.5` for recognition; that is what they are fed here.
+//!
+//! The submodules use nothing of this one: [`crop`], which both this
+//! module and the detector's input need, is [`canvas`]'s, re-exported.
 
 pub mod canvas;
 pub mod ctc;
@@ -28,6 +31,7 @@ use super::geometry::Rect;
 use super::image::{append_chw, resize, stretch_contrast, Channels};
 use super::model::ImageModel;
 use super::runtime::RuntimeError;
+pub use canvas::crop;
 use ctc::{Decoded, Dictionary};
 
 const REC_MEAN: [f32; 3] = [0.5; 3];
@@ -391,15 +395,6 @@ fn runtime(message: String) -> BatchError {
         model: "ocr".into(),
         message,
     })
-}
-
-/// The pixels of `rect` (clamped) as an image.
-pub fn crop(image: &RgbImage, rect: Rect) -> RgbImage {
-    let x0 = rect.x0.max(0.0).floor() as u32;
-    let y0 = rect.y0.max(0.0).floor() as u32;
-    let x1 = (rect.x1.ceil() as u32).clamp(x0 + 1, image.width());
-    let y1 = (rect.y1.ceil() as u32).clamp(y0 + 1, image.height());
-    image::imageops::crop_imm(image, x0, y0, x1 - x0, y1 - y0).to_image()
 }
 
 /// A text line cut out along its (possibly rotated) box `quad` (corners
