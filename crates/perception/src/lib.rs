@@ -11,8 +11,13 @@
 //!
 //! - [`config`]: the `[perception]` section, which models run and how;
 //! - [`runtime`]: ONNX Runtime, loaded once, and sessions on it;
+//! - [`error`]: the errors of loading ([`runtime::RuntimeError`]) and of
+//!   checking ([`check::CheckError`]) a model, which hold each other;
+//! - [`signature`]: a model's declared inputs and outputs ([`signature::Io`]);
 //! - [`batcher`]: concurrent requests for one model gathered into batches;
 //! - [`model`]: one ONNX model over images, as a batch model;
+//! - `whole_image`: what the descriptor and scene models are fed and what
+//!   is read from them, shared with the checks;
 //! - [`image`]: decoding JPEG, PNG and raw frames to RGB, resizing and
 //!   normalising to a model's input;
 //! - [`appearance`]: the appearance thumbnail, computed without a model;
@@ -27,12 +32,18 @@
 //!   of one stream instead of detected and read again;
 //! - [`cpu`]: the nice value perception's threads run at, and the CPU
 //!   time the process uses.
+//!
+//! The modules are layered: each uses only modules below it, never its
+//! parent (this root) or a module that uses it back. Types that several
+//! modules share (errors, signatures) sit in leaf modules of their own,
+//! and the root only assembles the roles into [`Perception`].
 
 pub mod appearance;
 pub mod batcher;
 pub mod check;
 pub mod config;
 pub mod cpu;
+pub mod error;
 pub mod geometry;
 pub mod image;
 pub mod model;
@@ -40,6 +51,8 @@ pub mod objects;
 pub mod ocr;
 pub mod reuse;
 pub mod runtime;
+pub mod signature;
+mod whole_image;
 pub mod yolo;
 
 use std::sync::Arc;
@@ -50,12 +63,14 @@ use humem_core::observe::SharedObserver;
 
 use batcher::{BatchError, Batcher};
 use config::{ImageModelConfig, PerceptionConfig};
-use humem_core::keyframe::{Features, ObjectObservation, SceneClass, TextObservation};
+use humem_core::keyframe::{Features, ObjectObservation, TextObservation};
 use image::{EncodedImage, ImageError};
-use model::{ImageModel, Planes};
+use model::ImageModel;
 use objects::Detector;
 use ocr::{Ocr, OcrModels, OcrTimes};
 use runtime::RuntimeError;
+use signature::Io;
+use whole_image::{model_input, top_classes};
 
 /// An image as received, owning its bytes.
 #[derive(Debug, Clone)]
@@ -124,7 +139,7 @@ pub enum PerceptionError {
 }
 
 /// A graph check of a whole-image role ([`check::graph`]).
-type GraphCheck = fn(&check::Io, &PerceptionConfig) -> Result<check::Facts, check::CheckError>;
+type GraphCheck = fn(&Io, &PerceptionConfig) -> Result<check::Facts, check::CheckError>;
 
 /// One model over whole images, with its preprocessing.
 #[derive(Clone)]
@@ -203,7 +218,7 @@ impl Perception {
                         let session =
                             runtime::session(&env, &path, m.precision().options(options))?;
                         if worker == 0 {
-                            let facts = fits(&check::Io::of(&session), config)
+                            let facts = fits(&Io::of(&session), config)
                                 .map_err(|e| RuntimeError::Check(Box::new(e)))?;
                             descriptor_len = descriptor_len.or(facts.descriptor_len);
                         }
@@ -270,10 +285,10 @@ impl Perception {
                             )?,
                         );
                         if worker == 0 {
-                            check::graph::ocr_detector(&check::Io::of(&pair.0), config)
+                            check::graph::ocr_detector(&Io::of(&pair.0), config)
                                 .and_then(|_| {
                                     check::graph::ocr_recognizer(
-                                        &check::Io::of(&pair.1),
+                                        &Io::of(&pair.1),
                                         config,
                                         ocr_config,
                                         dictionary.len(),
@@ -512,24 +527,6 @@ impl Perception {
     }
 }
 
-/// The normalised input of an image model.
-pub(crate) fn model_input(image: &RgbImage, config: &ImageModelConfig) -> Planes {
-    let resized = image::resize(image, config.width, config.height);
-    let mut data = Vec::with_capacity(3 * (config.width * config.height) as usize);
-    image::append_chw(
-        &resized,
-        image::Channels::Rgb,
-        config.mean,
-        config.std,
-        &mut data,
-    );
-    Planes {
-        width: config.width as usize,
-        height: config.height as usize,
-        data,
-    }
-}
-
 /// The L2-normalised descriptor of a model output.
 fn descriptor(output: Option<(Vec<usize>, Vec<f32>)>) -> Result<Vec<f32>, PerceptionError> {
     let (_, values) =
@@ -543,67 +540,9 @@ fn descriptor(output: Option<(Vec<usize>, Vec<f32>)>) -> Result<Vec<f32>, Percep
     Ok(values.iter().map(|v| v / norm).collect())
 }
 
-/// The `k` most probable classes of a probability vector. Outputs that are
-/// not probabilities (negative values or a sum above 1) are treated as
-/// logits and go through a softmax first.
-pub(crate) fn top_classes(values: &[f32], k: usize) -> Vec<SceneClass> {
-    let finite = values.iter().all(|v| v.is_finite());
-    if !finite || values.is_empty() {
-        return Vec::new();
-    }
-    let sum: f32 = values.iter().sum();
-    let probs: Vec<f32> = if values.iter().any(|&v| v < 0.0) || sum > 1.001 {
-        let max = values.iter().copied().fold(f32::MIN, f32::max);
-        let exp: Vec<f32> = values.iter().map(|v| (v - max).exp()).collect();
-        let total: f32 = exp.iter().sum();
-        exp.iter().map(|e| e / total).collect()
-    } else {
-        values.to_vec()
-    };
-    let mut classes: Vec<SceneClass> = probs
-        .iter()
-        .enumerate()
-        .filter(|(_, &p)| p > 0.0)
-        .map(|(i, &p)| SceneClass {
-            class_id: i as u32,
-            probability: p.min(1.0),
-        })
-        .collect();
-    classes.sort_by(|a, b| {
-        b.probability
-            .total_cmp(&a.probability)
-            .then(a.class_id.cmp(&b.class_id))
-    });
-    classes.truncate(k);
-    classes
-}
-
 #[cfg(test)]
 mod tests {
     use super::*;
-
-    #[test]
-    fn top_classes_keeps_the_most_probable() {
-        let classes = top_classes(&[0.1, 0.6, 0.0, 0.3], 2);
-        assert_eq!(
-            classes,
-            vec![
-                SceneClass {
-                    class_id: 1,
-                    probability: 0.6
-                },
-                SceneClass {
-                    class_id: 3,
-                    probability: 0.3
-                }
-            ]
-        );
-        // Logits: softmax of (0, ln 3) = (0.25, 0.75).
-        let classes = top_classes(&[0.0, 3f32.ln(), -30.0], 5);
-        assert_eq!(classes[0].class_id, 1);
-        assert!((classes[0].probability - 0.75).abs() < 1e-5);
-        assert!(top_classes(&[f32::NAN], 3).is_empty());
-    }
 
     #[test]
     fn descriptors_are_normalised_and_checked() {

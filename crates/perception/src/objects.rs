@@ -15,12 +15,12 @@ use std::time::Duration;
 use image::RgbImage;
 
 use super::batcher::{BatchConfig, BatchError, Batcher};
-use super::check::graph::Io;
 use super::config::{DetectorConfig, PerceptionConfig, YoloLayout};
 use super::geometry::Rect;
 use super::image::resize;
 use super::model::{ImageModel, Planes};
 use super::runtime::{self, RuntimeError};
+use super::signature::Io;
 use super::yolo::{self, Layout};
 use humem_core::observe::SharedObserver;
 

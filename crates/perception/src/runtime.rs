@@ -7,6 +7,9 @@
 //! Execution providers other than the CPU are opt-in (cargo features `cuda`
 //! and `tensorrt`) and fall back to the CPU with a warning when they cannot
 //! be registered, so a vehicle without a working GPU driver still serves.
+//!
+//! Its error, [`RuntimeError`], is defined in [`crate::error`] beside the
+//! model check's error it can carry, and re-exported here.
 
 use std::path::{Path, PathBuf};
 use std::sync::OnceLock;
@@ -14,6 +17,8 @@ use std::sync::OnceLock;
 use ort::session::builder::GraphOptimizationLevel;
 use ort::session::Session;
 use serde::{Deserialize, Serialize};
+
+pub use crate::error::RuntimeError;
 
 /// The hardware a model runs on.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize, Default)]
@@ -26,58 +31,6 @@ pub enum ExecutionProvider {
     Cuda,
     /// An NVIDIA GPU through TensorRT (cargo feature `tensorrt`).
     Tensorrt,
-}
-
-/// Errors of loading ONNX Runtime or a model.
-#[derive(Debug, Clone, thiserror::Error)]
-pub enum RuntimeError {
-    /// The ONNX Runtime shared library is not at the path resolved.
-    #[error("ONNX Runtime library not found at {0}; run scripts/setup-models.sh or set perception.onnxruntime / ORT_DYLIB_PATH")]
-    LibraryMissing(PathBuf),
-    /// The library exists but could not be loaded or initialised.
-    #[error("loading ONNX Runtime from {path}: {message}")]
-    Library {
-        /// The library's path.
-        path: PathBuf,
-        /// ONNX Runtime's message.
-        message: String,
-    },
-    /// A configured model file does not exist.
-    #[error("model file {0} does not exist; run scripts/setup-models.sh or fix the perception configuration")]
-    ModelMissing(PathBuf),
-    /// A model is configured with `precision = "int8"` and its quantised
-    /// file is not beside the fp32 one.
-    #[error("int8 model {0} does not exist; scripts/setup-models.sh makes it for the shipped models, tools/quantize_models.py for your own, or set the model's precision to \"fp32\"")]
-    QuantizedMissing(PathBuf),
-    /// The perception threads' nice value could not be set.
-    #[error("setting perception.nice = {nice}: {message}")]
-    Priority {
-        /// The configured nice value.
-        nice: i32,
-        /// The system's message.
-        message: String,
-    },
-    /// A model file (or the OCR dictionary) exists but could not be loaded.
-    #[error("loading model {path}: {message}")]
-    Model {
-        /// The file's path.
-        path: PathBuf,
-        /// Why it could not be loaded.
-        message: String,
-    },
-    /// A loaded model's graph does not fit its configuration (see
-    /// [`crate::check`]).
-    #[error(transparent)]
-    Check(Box<crate::check::CheckError>),
-    /// A loaded model lacks a configured input or output, or an inference
-    /// failed or gave outputs of an unexpected shape.
-    #[error("model {model}: {message}")]
-    Run {
-        /// Which model: its role (`descriptor`, `ocr recognizer`, …).
-        model: String,
-        /// What went wrong.
-        message: String,
-    },
 }
 
 static ENVIRONMENT: OnceLock<Result<ort::environment::Environment, RuntimeError>> = OnceLock::new();

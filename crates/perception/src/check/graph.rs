@@ -6,132 +6,40 @@
 //! model. An axis the graph leaves dynamic is accepted wherever HuMem can
 //! feed it; a shape the graph does not declare at all (some quantised
 //! exports) is noted and left to the one-image run of `humem models check`.
+//!
+//! What a check is given ([`Expected`]) and what it finds besides errors
+//! ([`Facts`]) are defined here; the graph's own description ([`Io`],
+//! [`Tensor`], [`Dim`]) lives in [`crate::signature`] and is re-exported,
+//! so that the loaders can read a graph without depending on the checks.
 
-use std::fmt;
-
-use ort::session::Session;
-use ort::value::{Outlet, ValueType};
-
-use super::{CheckError, Expected, Facts, Kind};
 use crate::config::{DetectorConfig, ImageModelConfig, OcrConfig, PerceptionConfig, YoloLayout};
+use crate::error::CheckError;
+use crate::signature::Kind;
+pub use crate::signature::{Dim, Io, Tensor};
 
 /// YOLO's largest stride: a detector whose input size is dynamic needs a
 /// size that is a multiple of it (its feature pyramid concatenates maps of
 /// strides 8 to 32).
 pub const YOLO_STRIDE: u32 = 32;
 
-/// One axis of a declared shape.
+/// A length an output must have, and the setting or store it comes from.
 #[derive(Debug, Clone, PartialEq, Eq)]
-pub enum Dim {
-    /// A fixed length.
-    Fixed(usize),
-    /// Any length, with the graph's symbol for it (may be empty).
-    Dynamic(String),
+pub struct Expected {
+    /// Values per image.
+    pub len: usize,
+    /// Where the expectation comes from (`store.descriptor_dim`, `the
+    /// store in ./data`).
+    pub source: String,
 }
 
-impl Dim {
-    fn fixed(&self) -> Option<usize> {
-        match self {
-            Dim::Fixed(n) => Some(*n),
-            Dim::Dynamic(_) => None,
-        }
-    }
-}
-
-impl fmt::Display for Dim {
-    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
-        match self {
-            Dim::Fixed(n) => write!(f, "{n}"),
-            Dim::Dynamic(s) if s.is_empty() => f.write_str("?"),
-            Dim::Dynamic(s) => f.write_str(s),
-        }
-    }
-}
-
-/// A tensor as the graph declares it.
-#[derive(Debug, Clone, PartialEq, Eq)]
-pub struct Tensor {
-    /// Its name.
-    pub name: String,
-    /// Element type as ONNX Runtime names it (`f32`, `f16`, `i64`, …).
-    pub element: String,
-    /// Its axes; `None` where the graph declares no shape.
-    pub dims: Option<Vec<Dim>>,
-}
-
-impl Tensor {
-    fn of(outlet: &Outlet) -> Tensor {
-        let (element, dims) = match outlet.dtype() {
-            ValueType::Tensor {
-                ty,
-                shape,
-                dimension_symbols,
-            } => {
-                let dims = shape
-                    .iter()
-                    .enumerate()
-                    .map(|(i, &d)| match usize::try_from(d) {
-                        Ok(n) => Dim::Fixed(n),
-                        Err(_) => {
-                            Dim::Dynamic(dimension_symbols.get(i).cloned().unwrap_or_default())
-                        }
-                    })
-                    .collect::<Vec<_>>();
-                // ONNX Runtime reports an undeclared shape as rank 0.
-                (ty.to_string(), (!dims.is_empty()).then_some(dims))
-            }
-            other => (other.to_string(), None),
-        };
-        Tensor {
-            name: outlet.name().to_string(),
-            element,
-            dims,
-        }
-    }
-
-    /// The shape as written in messages: `[n, 3, 384, 512]`, `[?]` undeclared.
-    pub fn shape(&self) -> String {
-        match &self.dims {
-            None => "[shape not declared]".into(),
-            Some(dims) => {
-                let dims: Vec<String> = dims.iter().map(Dim::to_string).collect();
-                format!("[{}]", dims.join(", "))
-            }
-        }
-    }
-}
-
-impl fmt::Display for Tensor {
-    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
-        write!(f, "{} {} {}", self.name, self.element, self.shape())
-    }
-}
-
-/// A graph's declared inputs and outputs.
-#[derive(Debug, Clone, PartialEq, Eq)]
-pub struct Io {
-    /// Its inputs, in order.
-    pub inputs: Vec<Tensor>,
-    /// Its outputs, in order.
-    pub outputs: Vec<Tensor>,
-}
-
-impl Io {
-    /// What `session`'s graph declares.
-    pub fn of(session: &Session) -> Io {
-        Io {
-            inputs: session.inputs().iter().map(Tensor::of).collect(),
-            outputs: session.outputs().iter().map(Tensor::of).collect(),
-        }
-    }
-
-    fn list(tensors: &[Tensor]) -> String {
-        if tensors.is_empty() {
-            return "none".into();
-        }
-        let all: Vec<String> = tensors.iter().map(Tensor::to_string).collect();
-        all.join(", ")
-    }
+/// What a graph check found besides mismatches.
+#[derive(Debug, Clone, Default, PartialEq, Eq)]
+pub struct Facts {
+    /// The descriptor's length, where the graph fixes it.
+    pub descriptor_len: Option<usize>,
+    /// Worth knowing, not wrong: a shape the graph does not declare, an
+    /// output that looks unused.
+    pub notes: Vec<String>,
 }
 
 /// Checks of one model's tensors, naming the model in every error.

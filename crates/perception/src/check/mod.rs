@@ -17,199 +17,31 @@
 //!   (descriptor length and norm, top scene classes, objects, text boxes
 //!   and the text read), which catches what a graph does not declare;
 //! - [`check_models`]: both for every configured model, for
-//!   `humem models check`.
+//!   `humem models check`, each model's outcome a [`ModelReport`]
+//!   ([`report`]); the OCR pair's in `text`.
+//!
+//! The types the checks share live below them, never here: the graph's
+//! signature in [`crate::signature`], the errors in [`crate::error`], what
+//! a graph check expects and finds in [`graph`]. This module runs the
+//! checks in order, draws the synthetic picture `humem models check` runs
+//! when given none, and re-exports those types under `check::`.
 //!
 //! Every error names the model (`perception.descriptor`, …), the tensor and
 //! what was expected against what was found.
 
 pub mod graph;
+pub mod report;
 pub mod run;
 mod text;
 
-use std::fmt;
-use std::path::PathBuf;
-
 use image::RgbImage;
-use ort::session::Session;
 
-use crate::config::{PerceptionConfig, Precision};
-use crate::runtime::{self, RuntimeError};
-pub use graph::{Dim, Io, Tensor};
-
-/// Whether a tensor is an input or an output.
-#[derive(Debug, Clone, Copy, PartialEq, Eq)]
-pub enum Kind {
-    /// A graph input.
-    Input,
-    /// A graph output.
-    Output,
-}
-
-impl fmt::Display for Kind {
-    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
-        f.write_str(match self {
-            Kind::Input => "input",
-            Kind::Output => "output",
-        })
-    }
-}
-
-/// Why a model does not fit its configuration.
-#[derive(Debug, Clone, thiserror::Error)]
-pub enum CheckError {
-    /// The model, a file it needs, or ONNX Runtime could not be loaded.
-    #[error("{model}: {error}")]
-    Load {
-        /// The model (`perception.descriptor`, …).
-        model: String,
-        /// Why.
-        error: RuntimeError,
-    },
-    /// The graph lacks a tensor the configuration names.
-    #[error("{model}: the graph has no {kind} {tensor:?}; its {kind}s: {found}")]
-    Missing {
-        /// The model.
-        model: String,
-        /// Input or output.
-        kind: Kind,
-        /// The configured name.
-        tensor: String,
-        /// What the graph has instead.
-        found: String,
-    },
-    /// A tensor is not what the configuration and HuMem need.
-    #[error("{model}: {kind} {tensor:?} should be {expected}; found {found}")]
-    Mismatch {
-        /// The model.
-        model: String,
-        /// Input or output.
-        kind: Kind,
-        /// The tensor's name.
-        tensor: String,
-        /// What was expected, with the setting it comes from.
-        expected: String,
-        /// What the graph (or a run) has.
-        found: String,
-    },
-    /// Running one image failed.
-    #[error("{model}: running one {size} image through input {tensor:?} failed: {message}")]
-    Run {
-        /// The model.
-        model: String,
-        /// The input fed.
-        tensor: String,
-        /// The input's size, `WxH`.
-        size: String,
-        /// ONNX Runtime's (or HuMem's) message.
-        message: String,
-    },
-}
-
-impl CheckError {
-    /// The model the error is about.
-    pub fn model(&self) -> &str {
-        match self {
-            CheckError::Load { model, .. }
-            | CheckError::Missing { model, .. }
-            | CheckError::Mismatch { model, .. }
-            | CheckError::Run { model, .. } => model,
-        }
-    }
-}
-
-/// A length an output must have, and the setting or store it comes from.
-#[derive(Debug, Clone, PartialEq, Eq)]
-pub struct Expected {
-    /// Values per image.
-    pub len: usize,
-    /// Where the expectation comes from (`store.descriptor_dim`, `the
-    /// store in ./data`).
-    pub source: String,
-}
-
-/// What a graph check found besides mismatches.
-#[derive(Debug, Clone, Default, PartialEq, Eq)]
-pub struct Facts {
-    /// The descriptor's length, where the graph fixes it.
-    pub descriptor_len: Option<usize>,
-    /// Worth knowing, not wrong: a shape the graph does not declare, an
-    /// output that looks unused.
-    pub notes: Vec<String>,
-}
-
-/// What `humem models check` found for one model.
-#[derive(Debug)]
-pub struct ModelReport {
-    /// The model (`perception.descriptor`, …).
-    pub model: &'static str,
-    /// Its file, as resolved.
-    pub file: Option<PathBuf>,
-    /// Its precision.
-    pub precision: Precision,
-    /// What its graph declares, once loaded.
-    pub io: Option<Io>,
-    /// Notes of the graph check and the run.
-    pub notes: Vec<String>,
-    /// What one image gave, a line per output.
-    pub ran: Vec<String>,
-    /// Whether it fits.
-    pub outcome: Result<(), CheckError>,
-}
-
-impl ModelReport {
-    fn new(model: &'static str, precision: Precision) -> ModelReport {
-        ModelReport {
-            model,
-            file: None,
-            precision,
-            io: None,
-            notes: Vec::new(),
-            ran: Vec::new(),
-            outcome: Ok(()),
-        }
-    }
-
-    /// Records `result`'s error as the outcome, or gives its value.
-    fn record<T>(&mut self, result: Result<T, CheckError>) -> Option<T> {
-        match result {
-            Ok(value) => Some(value),
-            Err(e) => {
-                self.outcome = Err(e);
-                None
-            }
-        }
-    }
-
-    /// Loads `model` at `precision` and reads its declared tensors.
-    fn load(
-        &mut self,
-        env: &ort::environment::Environment,
-        config: &PerceptionConfig,
-        model: &std::path::Path,
-    ) -> Option<Session> {
-        let name = self.model;
-        let load = |error| CheckError::Load {
-            model: name.to_string(),
-            error,
-        };
-        let path = config
-            .model_file(model, self.precision)
-            .map_err(load)
-            .inspect(|p| self.file = Some(p.clone()));
-        let path = self.record(path)?;
-        let session =
-            runtime::session(env, &path, self.precision.options(config.session_options()));
-        let session = self.record(session.map_err(load))?;
-        self.io = Some(Io::of(&session));
-        Some(session)
-    }
-
-    fn facts(&mut self, facts: Result<Facts, CheckError>) -> Option<Option<usize>> {
-        let facts = self.record(facts)?;
-        self.notes.extend(facts.notes);
-        Some(facts.descriptor_len)
-    }
-}
+use crate::config::PerceptionConfig;
+pub use crate::error::CheckError;
+use crate::runtime;
+pub use crate::signature::{Dim, Io, Kind, Tensor};
+pub use graph::{Expected, Facts};
+pub use report::ModelReport;
 
 /// 5x7 glyphs of the sign's word, a row per byte (bit 4 leftmost).
 const GLYPHS: [[u8; 7]; 5] = [

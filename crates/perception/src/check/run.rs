@@ -13,15 +13,16 @@ use std::time::Instant;
 use image::RgbImage;
 use ort::session::Session;
 
-use super::graph::{self, Dim, Io};
-use super::{CheckError, Expected, Kind};
+use super::graph::{self, Expected};
 use crate::batcher::BatchModel;
 use crate::config::{DetectorConfig, ImageModelConfig, OcrConfig, PerceptionConfig};
+use crate::error::{CheckError, RuntimeError};
 use crate::geometry::Rect;
 use crate::model::{ImageModel, Outputs};
 use crate::objects::{self, letterbox_input};
 use crate::ocr::{self, db, LineRecognizer};
-use crate::runtime::RuntimeError;
+use crate::signature::{Dim, Io, Kind};
+use crate::whole_image::{model_input, top_classes};
 
 /// A text box's corners in image pixels: top-left, top-right,
 /// bottom-right, bottom-left.
@@ -84,7 +85,7 @@ fn image_model(
     )
     .map_err(fail)?;
     let started = Instant::now();
-    let out = net.run(vec![crate::model_input(image, m)]).map_err(fail)?;
+    let out = net.run(vec![model_input(image, m)]).map_err(fail)?;
     let took = millis(started);
     let out = out.into_iter().next().ok_or_else(|| {
         fail(RuntimeError::Run {
@@ -202,7 +203,7 @@ fn scene_line(m: &ImageModelConfig, shape: &[usize], values: &[f32]) -> Result<S
         .collect();
     let found = format!("[1, {}] from one image", dims(shape));
     graph::lengths_fit(name, &m.output, values.len(), &found, &expected)?;
-    let top = crate::top_classes(values, 3);
+    let top = top_classes(values, 3);
     if top.is_empty() {
         return Err(CheckError::Mismatch {
             model: name.into(),

@@ -5,12 +5,13 @@ use std::sync::Arc;
 
 use image::RgbImage;
 
-use super::graph::{self, Io};
+use super::graph;
+use super::report::ModelReport;
 use super::run;
-use super::{CheckError, ModelReport};
 use crate::config::{OcrConfig, PerceptionConfig};
+use crate::error::{CheckError, RuntimeError};
 use crate::ocr::{self, ctc::Dictionary, LineRecognizer};
-use crate::runtime::RuntimeError;
+use crate::signature::Io;
 
 /// Reports for `perception.ocr.detector` and `perception.ocr.recognizer`.
 pub(super) fn check_ocr(
