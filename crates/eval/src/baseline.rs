@@ -1,6 +1,6 @@
 //! The ORB bag-of-words baseline, run beside HuMem-VPR in the same
 //! evaluation for an honest comparison: the retrieval ORB-SLAM3 does
-//! natively (see [`super::orb_bow`]).
+//! natively (see [`humem_orb_bow`]).
 //!
 //! Same queries, same ground truth, same eligibility and the same latency
 //! protocol as the other methods: its latency is ORB extraction (decoding
@@ -14,7 +14,9 @@ use anyhow::Context;
 
 use super::dataset::Dataset;
 use super::degrade::Degradation;
-use super::run::{image_bytes, progress, Samples, Selection};
+use super::images::image_bytes;
+use super::progress::progress;
+use super::protocol::{Samples, Selection};
 use super::truth::Kind;
 use humem_orb_bow::{self as orb_bow, BowParams, Descriptor, OrbBowIndex, OrbParams};
 

@@ -79,7 +79,7 @@ pub async fn run(args: IngestArgs) -> anyhow::Result<()> {
         .await
         .with_context(|| format!("connecting to {}", args.server))?;
 
-    let bar = super::run::progress(dataset.queries.len(), "ingest");
+    let bar = super::progress::progress(dataset.queries.len(), "ingest");
     let mut tally = Tally::default();
     for (i, image) in dataset.queries.iter().enumerate() {
         let data = std::fs::read(image).with_context(|| format!("reading {}", image.display()))?;

@@ -13,7 +13,7 @@ use std::path::Path;
 use anyhow::Context;
 use plotters::prelude::*;
 
-use super::run::EvalReport;
+use super::report::EvalReport;
 
 /// One colour per method, in report order.
 const PALETTE: [RGBColor; 6] = [
@@ -312,7 +312,7 @@ mod tests {
     use super::*;
     use crate::metrics::{LatencyStats, Retrieval};
     use crate::precision::{OperatingPoint, ScoredQuery};
-    use crate::run::{ConditionResult, MethodResult};
+    use crate::report::{ConditionResult, MethodResult};
 
     fn result(method: &str, r1: f64, ms: f64) -> MethodResult {
         MethodResult {
@@ -363,7 +363,7 @@ mod tests {
             threshold: 0.4,
             calibration: "null".into(),
             max_candidates: 5,
-            objects: crate::run::ObjectSource::Models,
+            objects: crate::args::ObjectSource::Models,
             grey: false,
             verdict_replay: None,
             conditions: vec![

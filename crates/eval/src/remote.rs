@@ -27,8 +27,10 @@ use humem_server::client::Connection;
 
 use super::dataset::Dataset;
 use super::degrade::Degradation;
+use super::images::image_bytes;
 use super::precision::OperatingPoint;
-use super::run::{image_bytes, progress, Samples, Selection};
+use super::progress::progress;
+use super::protocol::{Samples, Selection};
 use super::truth::Kind;
 use super::verdict_replay::{self, Asked, ReplayOptions, ReplayRow};
 use humem_core::vpr::Layers;

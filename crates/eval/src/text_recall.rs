@@ -291,7 +291,7 @@ async fn folder(
         extract_ms: 0.0,
         carried: 0,
     };
-    let bar = super::run::progress(selected.len(), &result.dataset);
+    let bar = super::progress::progress(selected.len(), &result.dataset);
     for (path, pose) in selected {
         bar.inc(1);
         let mut seen: Vec<&Sign> = signs

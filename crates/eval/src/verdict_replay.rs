@@ -186,7 +186,7 @@ pub struct FalseAlarm {
 fn keyframe(robot: &str, index: usize, features: &Features, pose: Pose) -> SemanticKeyframe {
     SemanticKeyframe {
         pose,
-        ..super::run::stored(robot, index, features)
+        ..super::keyframes::stored(robot, index, features)
     }
 }
 
@@ -478,7 +478,7 @@ pub(crate) async fn replay_pass<S: ReplayStream>(
     };
     // Per visit: the scored queries, their rankings and wrong rejections.
     let mut groups: BTreeMap<usize, Group> = BTreeMap::new();
-    let bar = super::run::progress(query_poses.len(), pass);
+    let bar = super::progress::progress(query_poses.len(), pass);
     for (q, pose) in query_poses.iter().enumerate() {
         bar.inc(1);
         stream.store(ROBOT, q, *pose).await?;
