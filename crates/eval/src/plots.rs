@@ -11,6 +11,8 @@
 use std::path::Path;
 
 use anyhow::Context;
+use plotters::coord::types::RangedCoordf64;
+use plotters::coord::Shift;
 use plotters::prelude::*;
 
 use super::report::EvalReport;
@@ -40,6 +42,27 @@ fn methods(report: &EvalReport) -> Vec<String> {
 fn colour(methods: &[String], method: &str) -> RGBColor {
     let i = methods.iter().position(|m| m == method).unwrap_or(0);
     PALETTE[i % PALETTE.len()]
+}
+
+/// A chart of this module: a Cartesian chart over `f64` on an SVG string.
+type Chart<'a, 'b> = ChartContext<'a, SVGBackend<'b>, Cartesian2d<RangedCoordf64, RangedCoordf64>>;
+
+/// How every chart ends: its legend, framed on a pale background at
+/// `legend`, then the drawing written out to the SVG string.
+fn finish<'a, 'b: 'a>(
+    mut chart: Chart<'a, 'b>,
+    root: &DrawingArea<SVGBackend<'b>, Shift>,
+    legend: SeriesLabelPosition,
+) -> anyhow::Result<()> {
+    chart
+        .configure_series_labels()
+        .position(legend)
+        .background_style(WHITE.mix(0.9))
+        .border_style(BLACK)
+        .label_font(("sans-serif", 14))
+        .draw()?;
+    root.present()?;
+    Ok(())
 }
 
 /// Recall@1 against median latency, one point per method and condition.
@@ -102,14 +125,7 @@ pub fn accuracy_latency_svg(report: &EvalReport) -> anyhow::Result<String> {
                 )
             }))?;
         }
-        chart
-            .configure_series_labels()
-            .position(SeriesLabelPosition::LowerRight)
-            .background_style(WHITE.mix(0.9))
-            .border_style(BLACK)
-            .label_font(("sans-serif", 14))
-            .draw()?;
-        root.present()?;
+        finish(chart, &root, SeriesLabelPosition::LowerRight)?;
     }
     Ok(svg)
 }
@@ -179,14 +195,7 @@ pub fn recall_per_condition_svg(report: &EvalReport) -> anyhow::Result<String> {
                 .label(name.as_str())
                 .legend(move |(x, y)| Rectangle::new([(x - 5, y - 5), (x + 5, y + 5)], c.filled()));
         }
-        chart
-            .configure_series_labels()
-            .position(SeriesLabelPosition::UpperLeft)
-            .background_style(WHITE.mix(0.9))
-            .border_style(BLACK)
-            .label_font(("sans-serif", 14))
-            .draw()?;
-        root.present()?;
+        finish(chart, &root, SeriesLabelPosition::UpperLeft)?;
     }
     Ok(svg)
 }
@@ -219,7 +228,6 @@ pub fn svg_to_png(svg: &str, path: &Path) -> anyhow::Result<()> {
         .with_context(|| format!("writing {}", path.display()))
 }
 
-/// Writes `accuracy_latency.{svg,png}` and `recall_per_condition.{svg,png}`.
 /// Precision against recall of the top-1 answer on the first (clean)
 /// condition: one line per method through its curve's points, highest
 /// threshold first; the operating point of each method is a filled dot.
@@ -277,14 +285,7 @@ pub fn precision_recall_svg(report: &EvalReport) -> anyhow::Result<String> {
                 c.filled(),
             )))?;
         }
-        chart
-            .configure_series_labels()
-            .position(SeriesLabelPosition::LowerLeft)
-            .background_style(WHITE.mix(0.9))
-            .border_style(BLACK)
-            .label_font(("sans-serif", 14))
-            .draw()?;
-        root.present()?;
+        finish(chart, &root, SeriesLabelPosition::LowerLeft)?;
     }
     Ok(svg)
 }
