@@ -1,4 +1,8 @@
 //! The client commands: JSON in, gRPC calls, JSON or a table out.
+//!
+//! One function per command, taking the command's flags; the parent module
+//! matches the command line to them, so this module needs only the shared
+//! flag groups ([`super::args`]), never the command enum above it.
 
 use std::io::{IsTerminal, Read};
 use std::path::Path;
@@ -6,7 +10,7 @@ use std::path::Path;
 use anyhow::{bail, Context};
 use serde::de::DeserializeOwned;
 
-use super::{Command, Output};
+use super::args::{Output, ServerArg, SessionArgs};
 use humem_server::client::connect;
 use humem_server::proto;
 
@@ -51,125 +55,113 @@ fn status_error(call: &str, status: tonic::Status) -> anyhow::Error {
     anyhow::anyhow!("{call} failed: {:?}: {}", status.code(), status.message())
 }
 
-/// Runs a client command.
-pub async fn run_client(command: Command) -> anyhow::Result<()> {
-    match command {
-        Command::Load(args) => super::load::run(args).await?,
-        Command::Serve(_)
-        | Command::Export { .. }
-        | Command::Token(_)
-        | Command::Probe { .. }
-        | Command::Models(_) => {
-            bail!("not a client command")
-        }
-        #[cfg(feature = "eval")]
-        Command::Bench(_) | Command::Eval(_) | Command::Ingest(_) | Command::TextRecall(_) => {
-            bail!("not a client command")
-        }
-        Command::Insert {
-            server,
-            file,
-            batch,
-        } => {
-            let keyframes: Vec<proto::Keyframe> = parse_messages(&read_input(&file)?, "keyframe")?;
-            if keyframes.is_empty() {
-                bail!("no keyframes in {}", file.display());
-            }
-            let mut client = connect(&server.server, &server.tls).await?;
-            let mut replaced = 0;
-            let mut stored = 0;
-            for chunk in keyframes.chunks(batch.max(1)) {
-                let reply = client
-                    .insert_batch(proto::InsertBatchRequest {
-                        keyframes: chunk.to_vec(),
-                    })
-                    .await
-                    .map_err(|s| status_error("InsertBatch", s))?
-                    .into_inner();
-                replaced += reply.replaced;
-                stored = reply.store_keyframes;
-            }
-            println!(
-                "inserted {} keyframes ({replaced} replaced); the store holds {stored}",
-                keyframes.len()
-            );
-        }
-        Command::Query {
-            server,
-            file,
-            output,
-        } => {
-            let queries: Vec<proto::QueryRequest> = parse_messages(&read_input(&file)?, "query")?;
-            let output = output.unwrap_or(if std::io::stdout().is_terminal() {
-                Output::Table
-            } else {
-                Output::Json
-            });
-            let mut client = connect(&server.server, &server.tls).await?;
-            for query in queries {
-                let reply = client
-                    .query(query.clone())
-                    .await
-                    .map_err(|s| status_error("Query", s))?
-                    .into_inner();
-                match output {
-                    Output::Json => println!("{}", serde_json::to_string(&reply)?),
-                    Output::Table => print_table(&query, &reply),
-                }
-            }
-        }
-        Command::Erase {
-            server,
-            session,
-            keyframe_ids,
-        } => {
-            let reply = connect(&server.server, &server.tls)
-                .await?
-                .erase(proto::EraseRequest {
-                    robot_id: session.robot,
-                    session_id: session.session,
-                    keyframe_ids,
-                })
-                .await
-                .map_err(|s| status_error("Erase", s))?;
-            println!("erased {}", reply.get_ref().erased);
-        }
-        Command::ResetMap {
-            server,
-            session,
-            map,
-        } => {
-            let reply = connect(&server.server, &server.tls)
-                .await?
-                .reset_map(proto::ResetMapRequest {
-                    robot_id: session.robot,
-                    session_id: session.session,
-                    map_id: Some(map),
-                })
-                .await
-                .map_err(|s| status_error("ResetMap", s))?;
-            println!("erased {}", reply.get_ref().erased);
-        }
-        Command::ResetSession { server, session } => {
-            let reply = connect(&server.server, &server.tls)
-                .await?
-                .reset_session(proto::ResetSessionRequest {
-                    robot_id: session.robot,
-                    session_id: session.session,
-                })
-                .await
-                .map_err(|s| status_error("ResetSession", s))?;
-            println!("erased {}", reply.get_ref().erased);
-        }
-        Command::Stats { server } => {
-            let reply = connect(&server.server, &server.tls)
-                .await?
-                .stats(proto::StatsRequest {})
-                .await
-                .map_err(|s| status_error("Stats", s))?;
-            println!("{}", serde_json::to_string_pretty(reply.get_ref())?);
+/// `humem insert`: stores the keyframes of `file`, `batch` a call.
+pub async fn insert(server: &ServerArg, file: &Path, batch: usize) -> anyhow::Result<()> {
+    let keyframes: Vec<proto::Keyframe> = parse_messages(&read_input(file)?, "keyframe")?;
+    if keyframes.is_empty() {
+        bail!("no keyframes in {}", file.display());
+    }
+    let mut client = connect(&server.server, &server.tls).await?;
+    let mut replaced = 0;
+    let mut stored = 0;
+    for chunk in keyframes.chunks(batch.max(1)) {
+        let reply = client
+            .insert_batch(proto::InsertBatchRequest {
+                keyframes: chunk.to_vec(),
+            })
+            .await
+            .map_err(|s| status_error("InsertBatch", s))?
+            .into_inner();
+        replaced += reply.replaced;
+        stored = reply.store_keyframes;
+    }
+    println!(
+        "inserted {} keyframes ({replaced} replaced); the store holds {stored}",
+        keyframes.len()
+    );
+    Ok(())
+}
+
+/// `humem query`: runs the queries of `file`, printing each answer as
+/// `output` says (default: a table on a terminal, JSON otherwise).
+pub async fn query(server: &ServerArg, file: &Path, output: Option<Output>) -> anyhow::Result<()> {
+    let queries: Vec<proto::QueryRequest> = parse_messages(&read_input(file)?, "query")?;
+    let output = output.unwrap_or(if std::io::stdout().is_terminal() {
+        Output::Table
+    } else {
+        Output::Json
+    });
+    let mut client = connect(&server.server, &server.tls).await?;
+    for query in queries {
+        let reply = client
+            .query(query.clone())
+            .await
+            .map_err(|s| status_error("Query", s))?
+            .into_inner();
+        match output {
+            Output::Json => println!("{}", serde_json::to_string(&reply)?),
+            Output::Table => print_table(&query, &reply),
         }
     }
+    Ok(())
+}
+
+/// `humem erase`: removes keyframes of a session.
+pub async fn erase(
+    server: &ServerArg,
+    session: SessionArgs,
+    keyframe_ids: Vec<u64>,
+) -> anyhow::Result<()> {
+    let reply = connect(&server.server, &server.tls)
+        .await?
+        .erase(proto::EraseRequest {
+            robot_id: session.robot,
+            session_id: session.session,
+            keyframe_ids,
+        })
+        .await
+        .map_err(|s| status_error("Erase", s))?;
+    println!("erased {}", reply.get_ref().erased);
+    Ok(())
+}
+
+/// `humem reset-map`: removes every keyframe of a map.
+pub async fn reset_map(server: &ServerArg, session: SessionArgs, map: u64) -> anyhow::Result<()> {
+    let reply = connect(&server.server, &server.tls)
+        .await?
+        .reset_map(proto::ResetMapRequest {
+            robot_id: session.robot,
+            session_id: session.session,
+            map_id: Some(map),
+        })
+        .await
+        .map_err(|s| status_error("ResetMap", s))?;
+    println!("erased {}", reply.get_ref().erased);
+    Ok(())
+}
+
+/// `humem reset-session`: removes every keyframe of a session.
+pub async fn reset_session(server: &ServerArg, session: SessionArgs) -> anyhow::Result<()> {
+    let reply = connect(&server.server, &server.tls)
+        .await?
+        .reset_session(proto::ResetSessionRequest {
+            robot_id: session.robot,
+            session_id: session.session,
+        })
+        .await
+        .map_err(|s| status_error("ResetSession", s))?;
+    println!("erased {}", reply.get_ref().erased);
+    Ok(())
+}
+
+/// `humem stats`: prints what the store holds.
+pub async fn stats(server: &ServerArg) -> anyhow::Result<()> {
+    let reply = connect(&server.server, &server.tls)
+        .await?
+        .stats(proto::StatsRequest {})
+        .await
+        .map_err(|s| status_error("Stats", s))?;
+    println!("{}", serde_json::to_string_pretty(reply.get_ref())?);
     Ok(())
 }
 

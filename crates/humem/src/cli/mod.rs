@@ -3,7 +3,12 @@
 //! The client reads and prints the API's messages in the proto3 JSON mapping
 //! (field names in lowerCamelCase, 64-bit ids as strings or numbers), so what
 //! a script sends is exactly what the `.proto` documents.
+//!
+//! This module holds the command enum and hands each client command to its
+//! call in [`client`]; the flag groups the commands share are in [`args`],
+//! a leaf both use, so no child module reaches back up into this one.
 
+pub mod args;
 pub(crate) mod client;
 #[cfg(feature = "eval")]
 pub mod cluster_bench;
@@ -13,16 +18,12 @@ pub mod models;
 pub mod probe;
 pub mod token;
 
-use std::net::SocketAddr;
 use std::path::PathBuf;
 
-use clap::{Args, Parser, Subcommand};
-use figment::providers::Serialized;
-use figment::Figment;
+use anyhow::bail;
+use clap::{Parser, Subcommand};
 
-pub use client::run_client;
-
-use humem_server::config::LogFormat;
+pub use args::{Output, ServeArgs, ServerArg, SessionArgs};
 
 /// HuMem: semantic place recognition for visual SLAM.
 #[derive(Debug, Parser)]
@@ -109,7 +110,7 @@ pub enum Command {
     /// Recall@1/@5, MRR and latency on a data set, the paper's way (ablations
     /// and degradations as options).
     #[cfg(feature = "eval")]
-    Eval(humem_eval::args::EvalArgs),
+    Eval(humem_eval::run::EvalArgs),
     /// Streams a recording (a bag, a TUM, EuRoC or KITTI folder, a HuMem
     /// folder) into a running server as a robot would, and prints the loop
     /// candidates it got, scored against the recording's poses.
@@ -161,62 +162,45 @@ pub enum BenchCommand {
     Verdicts(humem_eval::verdict_bench::VerdictBench),
 }
 
-#[derive(Debug, Clone, Copy, PartialEq, Eq, clap::ValueEnum)]
-pub enum Output {
-    Json,
-    Table,
-}
-
-/// Flags of `humem serve`; each overrides the configuration setting it names.
-#[derive(Debug, Args)]
-pub struct ServeArgs {
-    /// gRPC listen address (server.listen).
-    #[arg(long)]
-    pub listen: Option<SocketAddr>,
-    /// Data directory of the store (store.data_dir).
-    #[arg(long)]
-    pub data_dir: Option<PathBuf>,
-    /// Log format (log.format).
-    #[arg(long)]
-    pub log_format: Option<LogFormat>,
-}
-
-impl ServeArgs {
-    /// The flags as the top configuration layer.
-    pub fn overrides(&self) -> Figment {
-        let mut figment = Figment::new();
-        if let Some(listen) = self.listen {
-            figment = figment.merge(Serialized::default("server.listen", listen));
+/// Runs a client command.
+pub async fn run_client(command: Command) -> anyhow::Result<()> {
+    match command {
+        Command::Load(args) => load::run(args).await?,
+        Command::Serve(_)
+        | Command::Export { .. }
+        | Command::Token(_)
+        | Command::Probe { .. }
+        | Command::Models(_) => {
+            bail!("not a client command")
         }
-        if let Some(dir) = &self.data_dir {
-            figment = figment.merge(Serialized::default("store.data_dir", dir));
+        #[cfg(feature = "eval")]
+        Command::Bench(_) | Command::Eval(_) | Command::Ingest(_) | Command::TextRecall(_) => {
+            bail!("not a client command")
         }
-        if let Some(format) = self.log_format {
-            figment = figment.merge(Serialized::default("log.format", format));
+        Command::Insert {
+            server,
+            file,
+            batch,
+        } => client::insert(&server, &file, batch).await?,
+        Command::Query {
+            server,
+            file,
+            output,
+        } => client::query(&server, &file, output).await?,
+        Command::Erase {
+            server,
+            session,
+            keyframe_ids,
+        } => client::erase(&server, session, keyframe_ids).await?,
+        Command::ResetMap {
+            server,
+            session,
+            map,
+        } => client::reset_map(&server, session, map).await?,
+        Command::ResetSession { server, session } => {
+            client::reset_session(&server, session).await?
         }
-        figment
+        Command::Stats { server } => client::stats(&server).await?,
     }
-}
-
-/// Address of the server a client command talks to.
-#[derive(Debug, Args)]
-pub struct ServerArg {
-    /// Server URL.
-    #[arg(
-        long,
-        env = "HUMEM_SERVER_URL",
-        default_value = "http://127.0.0.1:50051"
-    )]
-    pub server: String,
-    #[command(flatten)]
-    pub tls: humem_server::client::ClientCredentials,
-}
-
-/// Robot and session of a maintenance command.
-#[derive(Debug, Args)]
-pub struct SessionArgs {
-    #[arg(long)]
-    pub robot: String,
-    #[arg(long, default_value = "")]
-    pub session: String,
+    Ok(())
 }
