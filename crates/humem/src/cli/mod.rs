@@ -110,7 +110,7 @@ pub enum Command {
     /// Recall@1/@5, MRR and latency on a data set, the paper's way (ablations
     /// and degradations as options).
     #[cfg(feature = "eval")]
-    Eval(humem_eval::run::EvalArgs),
+    Eval(humem_eval::args::EvalArgs),
     /// Streams a recording (a bag, a TUM, EuRoC or KITTI folder, a HuMem
     /// folder) into a running server as a robot would, and prints the loop
     /// candidates it got, scored against the recording's poses.
