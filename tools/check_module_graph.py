@@ -142,6 +142,7 @@ def remove_test_code(code, spans=None):
 
 def expand_use_tree(tree):
     """`a::{b, c::{d, e}}` -> [[a, b], [a, c, d], [a, c, e]] (segments)."""
+    tree = re.sub(r"\s+as\s+", "@as@", tree)
     tree = re.sub(r"\s+", "", tree)
     results = []
 
@@ -164,7 +165,7 @@ def expand_use_tree(tree):
                 head = [x for x in part[:brace].split("::") if x]
                 walk(prefix + head, part[brace + 1:part.rfind("}")])
             else:
-                path = part.split(" as ")[0] if " as " in part else re.sub(r"as\w+$", "", part)
+                path = part.split("@as@")[0]
                 results.append(prefix + [x for x in path.split("::") if x])
 
     walk([], tree)

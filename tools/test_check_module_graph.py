@@ -51,7 +51,9 @@ CLEAN = {
     """,
     "a.rs": """
         use crate::leaf::helper;
+        use crate::leaf::{helper as h};
         use crate::b::{self, B};
+        use crate::b as bas;
         pub struct A;
         mod inner {
             use super::A;
