@@ -46,6 +46,7 @@ CLEAN = {
         //! A crate whose root only declares and re-exports.
         pub mod a;
         pub mod b;
+        mod basement;
         mod leaf;
         pub use a::A;
     """,
@@ -68,8 +69,12 @@ CLEAN = {
     "b.rs": """
         use std::collections::HashMap;
         use serde::Serialize;
+        use crate::basement;
         pub struct B;
         pub fn g() -> usize { crate::leaf::helper() }
+    """,
+    "basement.rs": """
+        pub struct Floor;
     """,
     "leaf.rs": """
         pub(crate) fn helper() -> usize { 1 }
