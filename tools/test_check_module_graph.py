@@ -46,7 +46,7 @@ CLEAN = {
         //! A crate whose root only declares and re-exports.
         pub mod a;
         pub mod b;
-        mod basement;
+        mod lasting;
         mod leaf;
         pub use a::A;
     """,
@@ -69,11 +69,11 @@ CLEAN = {
     "b.rs": """
         use std::collections::HashMap;
         use serde::Serialize;
-        use crate::basement;
+        use crate::lasting;
         pub struct B;
         pub fn g() -> usize { crate::leaf::helper() }
     """,
-    "basement.rs": """
+    "lasting.rs": """
         pub struct Floor;
     """,
     "leaf.rs": """
