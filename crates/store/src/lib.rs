@@ -62,7 +62,10 @@ use std::path::Path;
 use std::sync::Arc;
 
 use humem_core::keyframe::{KeyframeKey, SemanticKeyframe};
+use humem_core::observe::SharedObserver;
 use parking_lot::RwLock;
+
+use layout::{META_LOG_POSITION, META_TREE};
 
 pub use checkpoint::SnapshotReport;
 pub use error::StoreError;
@@ -74,9 +77,6 @@ pub use open::{IndexSource, OpenReport};
 pub use options::{StoreOptions, DEFAULT_CACHE_BYTES, DEFAULT_SNAPSHOT_EVERY};
 pub use placement::FileRule;
 pub use recorded::{recorded_dim, recorded_log, RecordedLog};
-
-use humem_core::observe::SharedObserver;
-use layout::{META_LOG_POSITION, META_TREE};
 
 /// The store: sled plus the in-memory index, shared by the service.
 #[derive(Clone)]

@@ -92,7 +92,7 @@ pub struct LogEntry {
     pub mutation: Mutation,
 }
 
-/// What became of a batch of [`LogEntry`]s ([`Store::apply_log`]).
+/// What became of a batch of [`LogEntry`]s ([`crate::Store::apply_log`]).
 #[derive(Debug, Default)]
 pub struct LogApplied {
     /// One result per entry applied, in order. An entry refused for what it

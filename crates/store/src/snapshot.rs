@@ -34,13 +34,13 @@ use std::fs::File;
 use std::io::{BufWriter, Read, Seek, SeekFrom, Write};
 use std::path::{Path, PathBuf};
 
+use humem_core::engine::codes::CodeMatrix;
+use humem_core::engine::matrix::DescriptorMatrix;
+use humem_core::engine::row_file::RowFile;
 use humem_core::index::{Index, IndexRestore, RestoreError};
 use humem_core::keyframe::{
     Features, KeyframeKey, ObjectObservation, Pose, SceneClass, SemanticKeyframe,
 };
-use humem_core::vpr::codes::CodeMatrix;
-use humem_core::vpr::row_file::RowFile;
-use humem_core::vpr::DescriptorMatrix;
 use parking_lot::RwLock;
 use serde::{Deserialize, Serialize};
 use std::sync::atomic::{AtomicU64, Ordering};

@@ -1,5 +1,6 @@
-//! Staging a change: what each kind of [`Mutation`] writes to sled and
-//! changes in the index, worked out from sled alone (never the index,
+//! Staging a change: what each kind of
+//! [`Mutation`](crate::mutation::Mutation) writes to sled and changes in
+//! the index, worked out from sled alone (never the index,
 //! which lags the writer by the groups not yet published).
 //!
 //! A change is gathered into one [`Staged`] (its batches, the keys it
