@@ -562,7 +562,10 @@ calibration = \"raw\"\ng_xt = 0.5\n",
         )
         .unwrap();
         let config = Config::load(Some(&file), Figment::new()).unwrap();
-        assert_eq!(config.vpr.calibration, humem_core::vpr::Calibration::Raw);
+        assert_eq!(
+            config.vpr.calibration,
+            humem_core::vpr::params::Calibration::Raw
+        );
         assert_eq!(config.vpr.threshold(), 0.70);
         assert_eq!(config.vpr.g_xt, 0.5);
         for (text, field) in [

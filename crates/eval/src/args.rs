@@ -11,7 +11,7 @@ use serde::Serialize;
 use crate::degrade::Degradation;
 use crate::source::SourceArgs;
 use crate::verdict_replay::Variant;
-use humem_core::vpr::Layers;
+use humem_core::vpr::params::Layers;
 
 /// Options of `humem eval`.
 #[derive(Debug, Clone, clap::Args)]

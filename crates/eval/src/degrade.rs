@@ -1,6 +1,6 @@
 //! The paper's synthetic degradations `Bℓ/Dd` for `humem eval`.
 //!
-//! DESIGN.md ("Evaluation protocol"): a line-motion blur of length `ℓ`
+//! docs/evaluation.md ("the protocol"): a line-motion blur of length `ℓ`
 //! pixels, then exposure reduced to `(100 − d)%` of linear-light intensity.
 //! Precisely, per 8-bit sRGB channel:
 //!

@@ -1,5 +1,5 @@
 //! The evaluation harness behind `humem eval`: the paper's protocol
-//! (DESIGN.md, "Evaluation protocol") on real images, and the benchmarks
+//! (docs/evaluation.md) on real images, and the benchmarks
 //! behind `humem bench`.
 //!
 //! It sits above the server crate, so that it can measure the service's own
@@ -75,8 +75,3 @@ pub mod text_recall;
 pub mod truth;
 pub mod verdict_bench;
 pub mod verdict_replay;
-
-/// `humem bench perception`'s old path: the binary's `main.rs` still calls
-/// `humem_eval::bench::perception`.
-#[doc(hidden)]
-pub use perception_bench as bench;

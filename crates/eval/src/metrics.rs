@@ -1,6 +1,6 @@
 //! Retrieval metrics and latency statistics of `humem eval`.
 //!
-//! These are the numbers the paper reports (DESIGN.md, "Evaluation
+//! These are the numbers the paper reports (docs/evaluation.md, "the
 //! protocol"): Recall@1, Recall@5 and MRR over queries that have at least one
 //! valid match, at most 100 of them taken at evenly spaced indices; latency
 //! as mean, median and p95 of 30 evenly spaced queries after 10 warm-ups.

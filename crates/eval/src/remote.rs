@@ -33,7 +33,7 @@ use super::progress::progress;
 use super::protocol::{Samples, Selection};
 use super::truth::Kind;
 use super::verdict_replay::{self, Asked, ReplayOptions, ReplayRow};
-use humem_core::vpr::Layers;
+use humem_core::vpr::params::Layers;
 use humem_server::proto;
 use humem_server::proto::place_recognition_client::PlaceRecognitionClient;
 
@@ -296,7 +296,7 @@ impl Remote {
     /// the end with the rest of the run).
     pub async fn replay_verdicts(
         &mut self,
-        params: &humem_core::vpr::VprParams,
+        params: &humem_core::vpr::params::VprParams,
         dir: &std::path::Path,
         dataset: &Dataset,
         options: ReplayOptions,

@@ -68,7 +68,7 @@ fn options() -> StoreOptions {
     let auto = humem_server::config::StoreConfig::default();
     StoreOptions {
         snapshot_every: 0,
-        descriptors_to_file: auto.descriptors_to_file(humem_core::vpr::ScanMode::Auto),
+        descriptors_to_file: auto.descriptors_to_file(humem_core::vpr::params::ScanMode::Auto),
         ..StoreOptions::default()
     }
 }

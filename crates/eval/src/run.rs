@@ -26,7 +26,7 @@ use crate::remote::Remote;
 use crate::report::{markdown, print_table, ConditionResult, EvalReport, MethodResult};
 use crate::truth::{Kind, PoseRule};
 use crate::verdict_replay::ReplayOptions;
-use humem_core::vpr::Layers;
+use humem_core::vpr::params::Layers;
 use humem_perception::Perception;
 use humem_server::config::Config;
 

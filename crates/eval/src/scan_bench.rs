@@ -23,11 +23,13 @@ use std::time::{Duration, Instant};
 
 use anyhow::{ensure, Context};
 
+use humem_core::engine::kernels::dot_f32_wide;
 use humem_core::index::Index;
 use humem_core::keyframe::{Features, KeyframeKey, Pose, SceneClass, SemanticKeyframe, SessionKey};
 use humem_core::synthetic::{place_descriptor, place_of, Rng};
-use humem_core::vpr::kernels::dot_f32_wide;
-use humem_core::vpr::{KeyframeMemory, Layers, ScanMode, Scope, VprParams};
+use humem_core::vpr::eligibility::Scope;
+use humem_core::vpr::memory::KeyframeMemory;
+use humem_core::vpr::params::{Layers, ScanMode, VprParams};
 use humem_server::config::Config;
 use humem_server::pipeline::query::{self, QueryOutcome};
 use humem_server::pipeline::request::{QueryKind, QuerySpec};
@@ -672,7 +674,7 @@ fn print_table(args: &ScanBench, table: &[Row], k: usize, threads: usize) {
         "SCAL-only query, {}-d, top {k}, median of {} queries, code kernel {}; ratios against the exact f32 scan on 1 core",
         args.dim,
         args.queries,
-        humem_core::vpr::kernels::CodeKernel::detect().name()
+        humem_core::engine::kernels::CodeKernel::detect().name()
     );
     println!(
         "| keyframes | exact f32 scan, 1 core | HuMem exact, 1 core | HuMem compressed, 1 core | HuMem compressed, {threads} cores | same answers as exact | resident per keyframe | store built in |"

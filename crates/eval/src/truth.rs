@@ -1,7 +1,7 @@
 //! Ground truth for `humem eval`: read from a data set's `ground_truth.json`,
 //! or computed from camera poses with the paper's rule.
 //!
-//! The rule (DESIGN.md, "Evaluation protocol"): a database frame `c` is a
+//! The rule (docs/evaluation.md, "the protocol"): a database frame `c` is a
 //! valid match for query `q` when the camera positions are within 5 m, the
 //! orientations within 30° (geodesic angle), and, for a single sequence
 //! (`loop`), `c` is at least 100 frames earlier than `q`. The thresholds are

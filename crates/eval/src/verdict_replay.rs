@@ -44,8 +44,10 @@ use humem_core::index::Index;
 use humem_core::keyframe::{Features, Pose, SemanticKeyframe, SessionKey};
 use humem_core::synthetic::Rng;
 use humem_core::verdict::{Verdict, VerificationKind};
+use humem_core::vpr::eligibility::Scope;
 use humem_core::vpr::feedback::squared_distance;
-use humem_core::vpr::{Layers, Scope, VerdictParams, VprParams};
+use humem_core::vpr::feedback::VerdictParams;
+use humem_core::vpr::params::{Layers, VprParams};
 use humem_server::pipeline::query;
 use humem_server::pipeline::request::{QueryKind, QuerySpec};
 

@@ -54,7 +54,7 @@ async fn main() -> anyhow::Result<()> {
         Command::Bench(BenchCommand::Perception(args)) => {
             let config = Config::load(cli.config.as_deref(), figment::Figment::new())?;
             init_logging(LogFormat::Plain, "warn,ort::logging=error");
-            humem_eval::bench::perception(config, args).await
+            humem_eval::perception_bench::perception(config, args).await
         }
         #[cfg(feature = "eval")]
         Command::Bench(BenchCommand::Scan(args)) => {

@@ -40,7 +40,7 @@ fn contents(store: &Store) -> Vec<(SemanticKeyframe, Option<KeyframeKey>)> {
     let index = store.index();
     let mut all: Vec<_> = (0..index.len())
         .map(|row| {
-            let prev = humem_core::vpr::KeyframeMemory::predecessor(&*index, row)
+            let prev = humem_core::vpr::memory::KeyframeMemory::predecessor(&*index, row)
                 .map(|p| index.meta(p).key.clone());
             (index.keyframe(row), prev)
         })

@@ -55,26 +55,3 @@ pub mod viewpoint;
 
 #[cfg(test)]
 pub(crate) mod testing;
-
-// TEMPORARY-COMPAT (removed before commit of the path change)
-
-pub use crate::engine::filter::RowFilter;
-pub use crate::engine::matrix::{dot, DescriptorMatrix};
-#[doc(hidden)]
-pub use crate::engine::{codes, kernels, matrix, row_file};
-pub use calibration::NullModel;
-pub use contradiction::{Contradiction, MissingObject, TextConflict};
-pub use eligibility::{is_eligible, CandidateMeta, MapRef, QueryContext, Scope};
-pub use feedback::{VerdictEffect, VerdictParams};
-pub use fusion::{corroboration, fuse, fuse_with_contradiction};
-pub use memory::{KeyframeMemory, VecMemory};
-pub use ogtl::{ogtl, text_profile, text_profile_in, OgtlResult, TextMatch, TextProfile};
-pub use operating_point::OperatingPoint;
-pub use osrl::{object_affinity, osrl, spatial_kernel, ObjectMatch, OsrlResult};
-pub use params::{Calibration, Layers, ScanMode, TemporalMode, VprParams};
-pub use rank::{
-    rank, rank_timed, select, sort_ranked, QueryObservation, RankedCandidate, Ranking, StageTimes,
-};
-pub use scal::{cosine, modulated, scene_compatibility, ScalHit, ScalQuery};
-pub use scan::{scal_scan, scal_scores, ScalScan};
-pub use text::{distinctiveness, string_similarity};
