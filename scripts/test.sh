@@ -2,7 +2,8 @@
 # The project's test command (README "Test"): installs the Debian packages
 # and the models if they are missing, checks the model converter on real
 # pictures and the int8 models against the fp32 ones, then each crate's
-# module graph (tools/check_module_graph.py), formatting, lints
+# module graph (tools/check_module_graph.py), unused dependencies (cargo
+# machete, installed from crates.io if missing), formatting, lints
 # and every Rust test, unit and end-to-end (the e2e tests start the
 # real `humem` binary and run the real models), then the C++ and the Python
 # clients' tests against that binary, and the deployment files checked with the real
@@ -22,6 +23,9 @@ models/.venv/bin/python tools/test_docs_links.py
 echo "== module graph (no import circles or upward imports; files and functions within size)"
 python3 tools/test_check_module_graph.py
 python3 tools/check_module_graph.py
+echo "== unused dependencies (cargo machete)"
+command -v cargo-machete >/dev/null || cargo install cargo-machete --locked --version 0.9.2
+cargo machete
 echo "== cargo fmt --check"
 cargo fmt --all -- --check
 echo "== cargo clippy"
