@@ -240,6 +240,8 @@ class Crate:
             for m in re.finditer(r"\bmod\s+(\w+)\s*\{", code):
                 inline.append((m.end() - 1, matching_brace(code, m.end() - 1), m.group(1)))
 
+            inline_names = {name for _, _, name in inline}
+
             def scope_at(pos):
                 here = module
                 for start, end, inline_name in sorted(inline):
@@ -249,7 +251,11 @@ class Crate:
 
             def add(pos, segments):
                 target = self.resolve(scope_at(pos), segments)
-                if target is not None and target[:len(module)] != module:
+                own = target is not None and (
+                    target == module
+                    or (target[:len(module)] == module and target[len(module)] in inline_names)
+                )
+                if target is not None and not own:
                     graph[module].add(target)
 
             for m in re.finditer(r"\buse\s+([^;]+);", code):

@@ -105,6 +105,19 @@ expect(
     out,
 )
 
+ring = {
+    "lib.rs": "pub mod p;\npub mod q;\n",
+    "p/mod.rs": "pub mod c;\npub use c::C;\n",
+    "p/c.rs": "use crate::q::Q;\npub struct C;\n",
+    "q.rs": "use crate::p::C;\npub struct Q;\n",
+}
+code, out = check(ring)
+expect(
+    "a circle through a parent's use of its child is found",
+    code == 1 and "import circle: crate::p, crate::p::c, crate::q" in out,
+    out,
+)
+
 nested = {
     "lib.rs": "pub mod p;\n",
     "p/mod.rs": "mod c;\npub struct Shared;\npub fn top() -> c::C { c::C }\n",
@@ -132,5 +145,5 @@ expect("test code may import from anywhere", code == 0, out)
 
 for failure in failures:
     print("FAIL", failure)
-print(f"{7 - len(failures)} passed, {len(failures)} failed")
+print(f"{8 - len(failures)} passed, {len(failures)} failed")
 sys.exit(1 if failures else 0)
