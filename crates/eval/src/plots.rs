@@ -312,7 +312,6 @@ pub fn write_all(report: &EvalReport, dir: &Path) -> anyhow::Result<Vec<String>>
 mod tests {
     use super::*;
     use crate::metrics::{LatencyStats, Retrieval};
-    use crate::precision::{OperatingPoint, ScoredQuery};
     use crate::report::{ConditionResult, MethodResult};
 
     fn result(method: &str, r1: f64, ms: f64) -> MethodResult {
@@ -331,24 +330,7 @@ mod tests {
                 p95_ms: ms * 1.5,
             },
             stages_ms: Default::default(),
-            precision: crate::precision::precision(
-                &[
-                    ScoredQuery {
-                        ranked: vec![(0.9, true)],
-                        has_match: true,
-                        threshold: None,
-                    },
-                    ScoredQuery {
-                        ranked: vec![(0.5, false)],
-                        has_match: false,
-                        threshold: None,
-                    },
-                ],
-                OperatingPoint {
-                    threshold: 0.4,
-                    max_candidates: 5,
-                },
-            ),
+            precision: crate::report::tests::one_hit_one_false_alarm(),
         }
     }
 

@@ -197,9 +197,33 @@ pub(crate) fn markdown(report: &EvalReport) -> String {
 }
 
 #[cfg(test)]
-mod tests {
+pub(crate) mod tests {
     use super::*;
     use crate::precision::{OperatingPoint, ScoredQuery};
+
+    /// Precision over one answered query with a valid top and one answered
+    /// without a match (a false alarm), at threshold 0.4: the charts' tests
+    /// use it too.
+    pub(crate) fn one_hit_one_false_alarm() -> Precision {
+        crate::precision::precision(
+            &[
+                ScoredQuery {
+                    ranked: vec![(0.9, true)],
+                    has_match: true,
+                    threshold: None,
+                },
+                ScoredQuery {
+                    ranked: vec![(0.5, false)],
+                    has_match: false,
+                    threshold: None,
+                },
+            ],
+            OperatingPoint {
+                threshold: 0.4,
+                max_candidates: 5,
+            },
+        )
+    }
 
     fn result(method: &str) -> MethodResult {
         MethodResult {
@@ -217,26 +241,7 @@ mod tests {
                 p95_ms: 61.04,
             },
             stages_ms: BTreeMap::new(),
-            // One answered query with a valid top, one answered without a
-            // match: a false alarm.
-            precision: crate::precision::precision(
-                &[
-                    ScoredQuery {
-                        ranked: vec![(0.9, true)],
-                        has_match: true,
-                        threshold: None,
-                    },
-                    ScoredQuery {
-                        ranked: vec![(0.5, false)],
-                        has_match: false,
-                        threshold: None,
-                    },
-                ],
-                OperatingPoint {
-                    threshold: 0.4,
-                    max_candidates: 5,
-                },
-            ),
+            precision: one_hit_one_false_alarm(),
         }
     }
 
