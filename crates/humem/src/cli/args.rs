@@ -53,7 +53,7 @@ impl ServeArgs {
 }
 
 /// Address of the server a client command talks to.
-#[derive(Debug, Args)]
+#[derive(Debug, Clone, Args)]
 pub struct ServerArg {
     /// Server URL.
     #[arg(

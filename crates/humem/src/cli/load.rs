@@ -18,6 +18,7 @@ use anyhow::Context;
 use hdrhistogram::Histogram;
 use humem_server::client::Connection;
 
+use super::args::ServerArg;
 use humem_core::synthetic::{place_descriptor, place_of, Rng};
 use humem_server::proto;
 use humem_server::proto::place_recognition_client::PlaceRecognitionClient;
@@ -25,15 +26,9 @@ use humem_server::proto::place_recognition_client::PlaceRecognitionClient;
 /// Options of `humem load`.
 #[derive(Debug, Clone, clap::Args)]
 pub struct LoadArgs {
-    /// Server URL.
-    #[arg(
-        long,
-        env = "HUMEM_SERVER_URL",
-        default_value = "http://127.0.0.1:50051"
-    )]
-    pub server: String,
+    /// The server and how to reach it.
     #[command(flatten)]
-    pub tls: humem_server::client::ClientCredentials,
+    pub server: ServerArg,
     /// Simulated robots.
     #[arg(long, default_value_t = 8)]
     pub robots: usize,
@@ -304,7 +299,7 @@ pub async fn run(args: LoadArgs) -> anyhow::Result<()> {
         Some(dir) => Content::Images(Arc::new(load_images(dir)?)),
         None => Content::Synthetic(args.dim.max(1), args.descriptors),
     });
-    let channel = humem_server::client::channel(&args.server, &args.tls).await?;
+    let channel = humem_server::client::channel(&args.server.server, &args.server.tls).await?;
     let client = PlaceRecognitionClient::new(channel).max_encoding_message_size(64 << 20);
     let tallies = Tallies {
         insert: Arc::new(Mutex::new(Tally::new())),
@@ -316,7 +311,7 @@ pub async fn run(args: LoadArgs) -> anyhow::Result<()> {
         args.robots,
         args.rate,
         args.duration,
-        args.server,
+        args.server.server,
         match (&args.images, args.descriptors) {
             (Some(_), _) => "images".to_string(),
             (None, d) => format!(
