@@ -177,14 +177,13 @@ class Crate:
         self.name = name
         self.src = src
         self.modules = {}  # module path tuple -> file
-        self.test_only = set()
         root = src / "lib.rs" if (src / "lib.rs").exists() else src / "main.rs"
         self.root = root
         self._collect((), root)
 
     def _collect(self, path, file):
         self.modules[path] = file
-        code, test_mods = remove_test_code(strip_comments_and_strings(file.read_text()))
+        code, _ = remove_test_code(strip_comments_and_strings(file.read_text()))
         self_dir = file.parent if file.name in ("lib.rs", "main.rs", "mod.rs") else file.with_suffix("")
         for m in re.finditer(r"(?:pub(?:\([^)]*\))?\s+)?mod\s+(\w+)\s*;", code):
             name = m.group(1)
@@ -197,10 +196,6 @@ class Crate:
         for m in re.finditer(r"(?:pub(?:\([^)]*\))?\s+)?\bmod\s+(\w+)\s*\{", code):
             # An inline module: a module of its own, read as part of its file.
             self.modules.setdefault(path + (m.group(1),), None)
-        for name in test_mods:
-            for candidate in (self_dir / f"{name}.rs", self_dir / name / "mod.rs"):
-                if candidate.exists():
-                    self.test_only.add(candidate)
 
     def resolve(self, here, segments):
         """The module (path tuple) a path names from module `here`, or None."""
@@ -308,8 +303,6 @@ FN = re.compile(r"\bfn\s+\w+[^;{]*\{")
 def size_problems(crate, repo):
     problems = []
     for file in sorted(set(f for f in crate.modules.values() if f is not None)):
-        if file in crate.test_only or file.name.endswith("_tests.rs") or file.name == "tests.rs":
-            continue
         raw = file.read_text()
         spans = []
         code, _ = remove_test_code(strip_comments_and_strings(raw), spans)
