@@ -90,6 +90,7 @@ async fn open(
         min_free_bytes: config.store.min_free_bytes,
         descriptors_to_file: config.store.descriptors_to_file(config.vpr.scan),
         cache_bytes: config.store.cache_bytes,
+        neighbour_graph: config.store.neighbour_graph,
     };
     // Cluster mode: a store the write log no longer reaches (new, or away
     // longer than the log keeps entries) starts from the newest snapshot.

@@ -174,3 +174,162 @@ fn a_robots_own_map_is_a_partition_and_the_whole_fleet_is_not() {
         .partition()
         .is_none());
 }
+
+/// The index of `rows`, keeping a neighbour graph when `graph`.
+fn index_of(rows: Vec<StoredRow>, graph: bool) -> Index {
+    let mut index = Index::new(6);
+    if graph {
+        index.keep_neighbour_graph(None).unwrap();
+    }
+    for (robot, session, map, id, descriptor, scene) in rows {
+        let features = Features {
+            descriptor,
+            scene,
+            ..Features::default()
+        };
+        index.upsert(keyframe(robot, session, map, id, features));
+    }
+    index
+}
+
+proptest! {
+    #![proptest_config(ProptestConfig::with_cases(64))]
+
+    /// With the neighbour graph's candidates, a query still gets only rows
+    /// it may see; where the planner (or the query) chooses a full pass,
+    /// the answer is the one without a graph, bit for bit.
+    #[test]
+    fn the_graph_proposes_only_what_a_query_may_see_and_exact_passes_are_unchanged(
+        rows in store_strategy(),
+        removed in prop::collection::vec(0usize..150, 0..20),
+        query in (0usize..6, 0usize..2, prop::option::of(0u64..40), 0u64..120, 0u64..3, 0u64..40),
+        scope in scope_strategy(ROBOTS, SESSIONS),
+        readable in prop::option::of(prop::collection::vec(robot_name(), 0..4)),
+        history in prop::collection::vec((unit_vector(6), scene_strategy()), 1..4),
+        k in 1usize..12,
+    ) {
+        let mut with_graph = index_of(rows.clone(), true);
+        let mut without = index_of(rows.clone(), false);
+        // Erasures move rows: the graph's keys must follow them.
+        for r in removed {
+            if let Some((robot, session, _, id, _, _)) = rows.get(r) {
+                let key = KeyframeKey {
+                    robot_id: ROBOTS[*robot].into(),
+                    session_id: SESSIONS[*session].into(),
+                    keyframe_id: *id,
+                };
+                with_graph.remove(&key);
+                without.remove(&key);
+            }
+        }
+        prop_assert_eq!(with_graph.neighbour_graph().unwrap().len(), with_graph.len() - with_graph.neighbour_graph_missing());
+        let (robot, session, keyframe_id, frame_id, map_id, min_frame_gap) = query;
+        let context = QueryContext {
+            session: SessionKey {
+                robot_id: ROBOTS[robot].into(),
+                session_id: SESSIONS[session].into(),
+            },
+            keyframe_id,
+            frame_id,
+            map_id,
+            min_frame_gap,
+            scope,
+            readable_robots: readable,
+        };
+        let history: Vec<Features> = history
+            .into_iter()
+            .map(|(descriptor, scene)| Features { descriptor, scene, ..Features::default() })
+            .collect();
+        let query = ScalQuery { history: history.iter().collect() };
+        let filter = with_graph.eligibility(&context);
+        let reference = scal_scan(
+            &VprParams { top_k: k, ..VprParams::default() },
+            &query,
+            &without,
+            &without.eligibility(&context),
+        );
+        // Always the graph's candidates: only eligible rows, each scored
+        // as the full pass scores it.
+        let approximate = VprParams { top_k: k, approximate_from: 0, ..VprParams::default() };
+        let found = scal_scan(&approximate, &query, &with_graph, &filter);
+        for hit in &found.hits {
+            prop_assert!(filter.test(hit.row), "row {} is not eligible", hit.row);
+            let key = &with_graph.meta(hit.row).key;
+            let same = reference
+                .hits
+                .iter()
+                .find(|h| &without.meta(h.row).key == key);
+            if let Some(same) = same {
+                prop_assert_eq!(same.score.to_bits(), hit.score.to_bits());
+            }
+        }
+        prop_assert!(found.hits.len() <= reference.hits.len());
+        // A full pass: below the switch point, for an exact query, or with
+        // `vpr.exact`.
+        let below = VprParams { top_k: k, approximate_from: usize::MAX, ..VprParams::default() };
+        assert_same_bits(&scal_scan(&below, &query, &with_graph, &filter), &reference)?;
+        assert_same_bits(&scal_scan(&approximate, &query, &with_graph, &filter.clone().exact()), &reference)?;
+        let exact = VprParams { exact: true, ..approximate.clone() };
+        assert_same_bits(&scal_scan(&exact, &query, &with_graph, &filter), &reference)?;
+    }
+}
+
+#[test]
+fn the_graphs_candidates_find_the_exact_best_match_of_a_revisited_place() {
+    use crate::synthetic::{place_descriptor, Rng};
+    let dim = 64;
+    let mut noise = Rng::new(11);
+    let mut index = Index::new(dim);
+    index.keep_neighbour_graph(None).unwrap();
+    // Four robots pass 500 places in runs of four keyframes, each robot
+    // in its own map.
+    for robot in 0..4 {
+        for id in 0..1_500u64 {
+            let place = crate::synthetic::place_of(500, robot as u64, id);
+            let features = Features {
+                descriptor: place_descriptor(dim, place, &mut noise),
+                ..Features::default()
+            };
+            index.upsert(keyframe(robot, 0, 0, id, features));
+        }
+    }
+    let exact = VprParams::default();
+    let approximate = VprParams {
+        approximate_from: 0,
+        ..VprParams::default()
+    };
+    let mut same = 0;
+    let queries = 200;
+    for q in 0..queries {
+        let history = [Features {
+            descriptor: place_descriptor(dim, q * 7 % 500, &mut noise),
+            ..Features::default()
+        }];
+        let query = ScalQuery {
+            history: history.iter().collect(),
+        };
+        let context = QueryContext {
+            session: SessionKey {
+                robot_id: ROBOTS[(q % 4) as usize].into(),
+                session_id: SESSIONS[0].into(),
+            },
+            keyframe_id: None,
+            frame_id: 0,
+            map_id: 0,
+            min_frame_gap: 0,
+            scope: Scope::OtherMaps,
+            readable_robots: None,
+        };
+        let filter = index.eligibility(&context);
+        let a = scal_scan(&approximate, &query, &index, &filter);
+        let e = scal_scan(&exact, &query, &index, &filter);
+        assert_eq!(a.eligible, 4_500);
+        assert!(a.hits.iter().all(|h| filter.test(h.row)));
+        if a.hits.first().map(|h| h.row) == e.hits.first().map(|h| h.row) {
+            same += 1;
+        }
+        // The null model comes from the same sample, up to its rows' order.
+        assert!((a.null.location - e.null.location).abs() < 1e-6);
+    }
+    assert!(same >= queries * 97 / 100, "{same} of {queries}");
+}

@@ -54,6 +54,10 @@ pub struct IndexQuery<'a> {
     /// every row: the same answer at the cost of the whole store, the
     /// reference `humem bench scan` checks the partitioned scan against.
     pub partitioned: bool,
+    /// Whether the answer must come from a pass over every eligible row,
+    /// never from the neighbour graph's candidates (as `vpr.exact` does
+    /// for every query).
+    pub exact: bool,
 }
 
 /// What one query over the index found.
@@ -79,6 +83,11 @@ pub fn answer(index: &Index, params: &VprParams, query: &IndexQuery) -> Answer {
         eligible
     } else {
         eligible.without_partition()
+    };
+    let eligible = if query.exact {
+        eligible.exact()
+    } else {
+        eligible
     };
     let Ranking {
         candidates: mut ranked,
@@ -319,6 +328,7 @@ mod tests {
             stored_row: Some(row),
             threshold: Some(0.0),
             top_n: 50,
+            exact: false,
             partitioned,
         }
     }

@@ -247,6 +247,7 @@ impl LocalDatabase {
                     threshold: Some(0.0),
                     layers,
                     kind: QueryKind::LoopClosure,
+                    exact: false,
                 };
                 let started = Instant::now();
                 let outcome = query::run(&index, &config.vpr, &spec)

@@ -195,6 +195,7 @@ fn spec(keyframe_id: u64, top_n: usize) -> QuerySpec {
         threshold: Some(0.0),
         layers: Layers::SCAL,
         kind: QueryKind::LoopClosure,
+        exact: false,
     }
 }
 

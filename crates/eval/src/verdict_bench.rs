@@ -101,6 +101,7 @@ fn spec(id: u64, top_n: usize) -> QuerySpec {
         threshold: None,
         layers: Layers::FULL,
         kind: QueryKind::LoopClosure,
+        exact: false,
     }
 }
 

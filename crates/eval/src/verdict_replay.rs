@@ -332,6 +332,7 @@ impl ReplayStream for LocalStream<'_> {
             threshold: Some(0.0),
             layers: Layers::FULL,
             kind: QueryKind::LoopClosure,
+            exact: false,
         };
         let outcome = query::run(&self.index, &self.params, &spec)
             .with_context(|| format!("ranking query {q}"))?;

@@ -21,7 +21,7 @@ use humem_core::index::Index;
 use parking_lot::{Mutex, RwLock};
 
 use crate::error::StoreError;
-use crate::{journal, snapshot};
+use crate::{graph_file, journal, snapshot};
 
 /// One snapshot written.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -126,8 +126,12 @@ impl Checkpoints {
                     return Err(e.into());
                 }
             };
+        let graph = graph_file::save(&self.dir, &self.index);
         let rows = self.index.read().len();
         let written = started.elapsed();
+        if let Some(graph) = graph {
+            graph.publish();
+        }
         let bytes = unpublished.publish()?;
         self.written.store(sequence, Ordering::Release);
         journal::truncate(&self.journal, &self.meta, sequence)?;

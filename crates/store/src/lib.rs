@@ -46,6 +46,7 @@ pub mod codec;
 pub mod disk;
 mod error;
 pub mod export;
+pub mod graph_file;
 pub mod journal;
 mod layout;
 mod mutation;

@@ -26,7 +26,7 @@ use crate::layout::{
 use crate::options::StoreOptions;
 use crate::placement::DescriptorPlacement;
 use crate::writer::{self, WriterHandle};
-use crate::{codec, disk, journal, snapshot};
+use crate::{codec, disk, graph_file, journal, snapshot};
 
 /// Where the index came from at open.
 #[derive(Debug, Clone, PartialEq, Eq)]
@@ -78,6 +78,7 @@ pub(crate) fn open(
         min_free_bytes,
         descriptors_to_file,
         cache_bytes,
+        neighbour_graph,
     } = options;
     let db = sled::Config::new()
         .path(dir)
@@ -108,6 +109,7 @@ pub(crate) fn open(
         store_id,
         dim,
         sequence,
+        neighbour_graph,
     )?;
     let verdicts = db.open_tree(VERDICTS_TREE)?;
     let verdicts_by_candidate = db.open_tree(VERDICTS_BY_CANDIDATE_TREE)?;
@@ -210,7 +212,9 @@ fn pinned_dim(meta: &sled::Tree, asked: usize) -> Result<usize, StoreError> {
 /// index, where it came from, and the sequence of the snapshot it was
 /// loaded from (none: rebuilt from the tree). The store's directory is
 /// `placement`'s, and the descriptors leave memory as it says while they
-/// load, not after.
+/// load, not after. With `neighbour_graph`, the index keeps one from the
+/// start (see [`graph_file`]).
+#[allow(clippy::too_many_arguments)]
 fn load_index(
     placement: &DescriptorPlacement,
     keyframes: &sled::Tree,
@@ -219,6 +223,7 @@ fn load_index(
     store_id: u128,
     dim: usize,
     sequence: u64,
+    neighbour_graph: bool,
 ) -> Result<(Index, IndexSource, Option<u64>), StoreError> {
     let reason = match from_snapshot(
         placement,
@@ -228,6 +233,7 @@ fn load_index(
         store_id,
         dim,
         sequence,
+        neighbour_graph,
     ) {
         Ok(Ok((index, replayed, snapshot_sequence))) => {
             return Ok((
@@ -256,6 +262,11 @@ fn load_index(
         }
     }
     placement.apply(&mut index);
+    if neighbour_graph {
+        // Built once from every row (on every core), not row by row.
+        let _ = std::fs::remove_file(graph_file::path(placement.dir()));
+        graph_file::attach(placement.dir(), &mut index);
+    }
     Ok((index, IndexSource::Tree { reason }, None))
 }
 
@@ -286,6 +297,9 @@ const NO_SNAPSHOT: &str = "no snapshot";
 
 /// The snapshot's index plus the journal's changes since, with the number
 /// of keys replayed and the snapshot's sequence; or why it cannot be used.
+/// With `neighbour_graph`, the graph is attached before the replay, which
+/// then updates it.
+#[allow(clippy::too_many_arguments)]
 fn from_snapshot(
     placement: &DescriptorPlacement,
     keyframes: &sled::Tree,
@@ -294,6 +308,7 @@ fn from_snapshot(
     store_id: u128,
     dim: usize,
     sequence: u64,
+    neighbour_graph: bool,
 ) -> Result<Result<(Index, usize, u64), String>, StoreError> {
     let Some((header, mut index)) =
         snapshot::read(placement.dir(), store_id, dim, placement.rule())?
@@ -312,6 +327,9 @@ fn from_snapshot(
             "the snapshot (write {}) is newer than the store (write {sequence})",
             header.sequence
         )));
+    }
+    if neighbour_graph {
+        graph_file::attach(placement.dir(), &mut index);
     }
     let pending = journal::pending(journal_tree, header.sequence)?;
     for key in &pending.keys {

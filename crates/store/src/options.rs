@@ -33,6 +33,10 @@ pub struct StoreOptions {
     /// the server's resident memory beyond the index once the store is
     /// large.
     pub cache_bytes: u64,
+    /// Whether the index keeps a neighbour graph over the descriptors (the
+    /// approximate first stage of queries over many keyframes), saved
+    /// beside its snapshot.
+    pub neighbour_graph: bool,
 }
 
 /// Default of [`StoreOptions::cache_bytes`]: sled's own.
@@ -47,6 +51,7 @@ impl Default for StoreOptions {
             min_free_bytes: disk::DEFAULT_MIN_FREE_BYTES,
             descriptors_to_file: None,
             cache_bytes: DEFAULT_CACHE_BYTES,
+            neighbour_graph: false,
         }
     }
 }

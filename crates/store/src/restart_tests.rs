@@ -16,16 +16,23 @@ fn open_manual(dir: &Path) -> Store {
 /// [`open_manual`], with the descriptors leaving memory from
 /// `descriptors_to_file_from` keyframes.
 fn open_manual_with(dir: &Path, descriptors_to_file_from: Option<usize>) -> Store {
-    let descriptors_to_file = descriptors_to_file_from.map(FileRule::from_keyframes);
-    let deadline = Instant::now() + Duration::from_secs(5);
-    loop {
-        let options = StoreOptions {
+    open_retrying(
+        dir,
+        StoreOptions {
             snapshot_every: 0,
             queue_capacity: 16,
-            descriptors_to_file,
+            descriptors_to_file: descriptors_to_file_from.map(FileRule::from_keyframes),
             ..StoreOptions::default()
-        };
-        match Store::open_with(dir, options, humem_core::observe::unobserved()) {
+        },
+    )
+}
+
+/// Opens `dir` with `options`, waiting up to 5 s for the last handle of
+/// it to let go.
+fn open_retrying(dir: &Path, options: StoreOptions) -> Store {
+    let deadline = Instant::now() + Duration::from_secs(5);
+    loop {
+        match Store::open_with(dir, options.clone(), humem_core::observe::unobserved()) {
             Err(StoreError::Open { .. }) if Instant::now() < deadline => {
                 std::thread::sleep(Duration::from_millis(20))
             }
@@ -516,4 +523,80 @@ async fn the_writer_sorts_again_rows_scattered_by_erasures_and_a_reopen_finds_th
         dir.path(),
         robots * per_robot as usize - erased as usize,
     );
+}
+
+/// Opens `dir` keeping a neighbour graph, snapshots only when asked.
+fn open_with_graph(dir: &Path) -> Store {
+    open_retrying(
+        dir,
+        StoreOptions {
+            snapshot_every: 0,
+            queue_capacity: 16,
+            neighbour_graph: true,
+            ..StoreOptions::default()
+        },
+    )
+}
+
+/// The graph's nearest keyframe to `descriptor`, by key.
+fn nearest_key(store: &Store, descriptor: &[f32]) -> Option<KeyframeKey> {
+    let index = store.index();
+    let rows = index.nearest_rows(descriptor, 1, &|_| true)?;
+    rows.first().map(|&row| index.meta(row).key.clone())
+}
+
+#[tokio::test]
+async fn the_neighbour_graph_is_saved_with_the_snapshot_and_replayed_changes_reach_it() {
+    let dir = tempfile::tempdir().unwrap();
+    let with = |id: u64, descriptor: [f32; 3]| {
+        let mut k = kf("a", "s", id, 0);
+        k.features.descriptor = descriptor.to_vec();
+        k
+    };
+    {
+        let store = open_with_graph(dir.path());
+        insert(&store, (0..30).map(|i| with(i, [1.0, i as f32 * 0.1, 0.0])).collect()).await;
+        assert_eq!(store.index().neighbour_graph().unwrap().len(), 30);
+        store.snapshot().unwrap();
+        assert!(graph_file::path(dir.path()).exists());
+        // After the snapshot, in the journal only: one keyframe replaced
+        // by a descriptor no other has, one erased.
+        insert(&store, vec![with(5, [0.0, 0.0, 1.0])]).await;
+        store
+            .apply(Mutation::Erase {
+                session: session("a", "s"),
+                keyframe_ids: vec![7],
+            })
+            .await
+            .unwrap();
+    }
+    let store = open_with_graph(dir.path());
+    assert_eq!(store.opened().source, IndexSource::Snapshot { replayed: 2 });
+    let index = store.index();
+    let graph = index.neighbour_graph().expect("a graph after the restart");
+    assert_eq!(graph.len(), 29);
+    assert_eq!(index.neighbour_graph_missing(), 0);
+    drop(index);
+    assert_eq!(
+        nearest_key(&store, &[0.0, 0.0, 1.0]),
+        Some(session("a", "s").keyframe(5))
+    );
+    let index = store.index();
+    let rows = index.nearest_rows(&[1.0, 0.7, 0.0], 30, &|_| true).unwrap();
+    assert_eq!(rows.len(), 29);
+    assert!(rows.iter().all(|&r| index.meta(r).key.keyframe_id != 7));
+}
+
+#[tokio::test]
+async fn a_store_without_a_saved_graph_builds_one_at_open() {
+    let dir = tempfile::tempdir().unwrap();
+    {
+        let store = open_manual(dir.path());
+        insert(&store, (0..25).map(|i| kf("a", "s", i, 0)).collect()).await;
+        assert!(store.index().neighbour_graph().is_none());
+        store.snapshot().unwrap();
+    }
+    assert!(!graph_file::path(dir.path()).exists());
+    let store = open_with_graph(dir.path());
+    assert_eq!(store.index().neighbour_graph().unwrap().len(), 25);
 }

@@ -644,6 +644,7 @@ pub fn query(mut r: proto::QueryRequest, limits: &Limits) -> Result<QuerySpec> {
         threshold,
         layers,
         kind,
+        exact: r.exact,
     })
 }
 

@@ -197,6 +197,7 @@ fn run_scanning(
             threshold: spec.threshold,
             top_n: spec.top_n,
             partitioned,
+            exact: spec.exact,
         },
     );
     Ok(QueryOutcome {
@@ -448,6 +449,7 @@ mod tests {
             threshold: Some(0.0),
             layers: humem_core::vpr::params::Layers::FULL,
             kind: super::super::request::QueryKind::LoopClosure,
+            exact: false,
         };
         let mut ids: Vec<u64> = run(index, params, &spec)
             .unwrap()

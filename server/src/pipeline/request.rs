@@ -71,6 +71,9 @@ pub struct QuerySpec {
     pub layers: Layers,
     /// What the query is for.
     pub kind: QueryKind,
+    /// Answer from a pass over every eligible keyframe, never from the
+    /// neighbour graph's candidates.
+    pub exact: bool,
 }
 
 /// What a keyframe or query shows, as sent.

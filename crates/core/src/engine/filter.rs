@@ -23,6 +23,13 @@ pub trait RowFilter: Sync {
     fn partition(&self) -> Option<&[usize]> {
         None
     }
+
+    /// How many rows can pass at most (the rows of the maps the rule
+    /// admits), where the filter knows it cheaply; None: unknown. What a
+    /// planner weighs the exact pass's cost by.
+    fn admitted(&self) -> Option<usize> {
+        self.partition().map(<[usize]>::len)
+    }
 }
 
 impl<F: Fn(usize) -> bool + Sync + ?Sized> RowFilter for F {

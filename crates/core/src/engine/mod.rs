@@ -15,6 +15,8 @@
 //!   chosen once at run time;
 //! - [`row_file`]: where the f32 rows go when they leave memory (the one
 //!   file I/O of the core: positional reads and writes);
+//! - [`graph`]: the neighbour graph (HNSW) that proposes a large query's
+//!   candidates without reading every row;
 //! - [`filter`]: what a scan asks of the eligibility rule (a test per row
 //!   and, where known, the rows that can pass);
 //! - `visit`: which rows a scan visits, in blocks for the cores and runs of
@@ -22,6 +24,7 @@
 
 pub mod codes;
 pub mod filter;
+pub mod graph;
 pub mod kernels;
 pub mod matrix;
 pub mod row_file;

@@ -31,6 +31,7 @@ impl Index {
         );
         let row = self.matrix.push(&keyframe.features.descriptor);
         self.attach(row, keyframe);
+        self.graph_insert(row);
         replaced
     }
 
@@ -88,6 +89,7 @@ impl Index {
             return false;
         };
         self.changes += 1;
+        self.graph_remove(row);
         self.unlink(row);
         for text in distinct_texts(&self.rows[row].objects) {
             if let Some(count) = self.text_df.get_mut(&text) {
@@ -112,6 +114,7 @@ impl Index {
         self.grouped = self.grouped.min(last);
         if row != last {
             self.note_displaced(row);
+            self.graph_moved(last, row);
             let moved = &self.rows[row];
             self.by_key.insert(moved.key.clone(), row);
             let map = moved.map_key();

@@ -18,20 +18,21 @@ impl Index {
     /// [`PARTITION_MAX_SHARE`] of the store.
     pub fn eligibility(&self, context: &QueryContext) -> RowEligibility<'_> {
         let rule = Eligibility::compile(context, &self.interner);
-        let partition = self.partition(&rule);
+        let (partition, admitted) = self.partition(&rule);
         RowEligibility {
             rule,
             ids: &self.ids,
             partition,
+            admitted: Some(admitted),
         }
     }
 
     /// The rows of every map `rule` admits (scope and read access), sorted,
     /// or `None` when they are more than [`PARTITION_MAX_SHARE`] of the
-    /// store. The tracks are the partition: every row is in its map's
+    /// store; and how many they are. The tracks are the partition: every row is in its map's
     /// track, so counting costs one look per map, and gathering the rows
     /// one per admitted row.
-    fn partition(&self, rule: &Eligibility) -> Option<Vec<usize>> {
+    fn partition(&self, rule: &Eligibility) -> (Option<Vec<usize>>, usize) {
         let admitted: Vec<&BTreeMap<u64, usize>> = self
             .tracks
             .values()
@@ -44,14 +45,14 @@ impl Index {
             .collect();
         let count: usize = admitted.iter().map(|track| track.len()).sum();
         if count as f64 > PARTITION_MAX_SHARE * self.len() as f64 {
-            return None;
+            return (None, count);
         }
         let mut rows: Vec<usize> = admitted
             .into_iter()
             .flat_map(|track| track.values().copied())
             .collect();
         rows.sort_unstable();
-        Some(rows)
+        (Some(rows), count)
     }
 }
 
@@ -68,6 +69,9 @@ pub struct RowEligibility<'a> {
     rule: Eligibility,
     ids: &'a [RowIds],
     partition: Option<Vec<usize>>,
+    /// Rows of the maps the rule admits; None once the query asked for an
+    /// exact pass ([`RowEligibility::exact`]).
+    admitted: Option<usize>,
 }
 
 impl RowEligibility<'_> {
@@ -84,6 +88,14 @@ impl RowEligibility<'_> {
         self.partition = None;
         self
     }
+
+    /// The same rule, for a query that wants an exact pass: it names no
+    /// count of admitted rows, so the planner never takes the neighbour
+    /// graph's candidates for it.
+    pub fn exact(mut self) -> Self {
+        self.admitted = None;
+        self
+    }
 }
 
 impl RowFilter for RowEligibility<'_> {
@@ -94,5 +106,9 @@ impl RowFilter for RowEligibility<'_> {
 
     fn partition(&self) -> Option<&[usize]> {
         self.partition.as_deref()
+    }
+
+    fn admitted(&self) -> Option<usize> {
+        self.admitted
     }
 }

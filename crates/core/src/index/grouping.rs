@@ -246,6 +246,9 @@ impl Index {
                 *pred = new_row[p - from] as u32;
             }
         }
+        for (i, &old) in order.iter().enumerate() {
+            self.graph_moved(old, from + i);
+        }
         for row in from..to {
             let meta = &self.rows[row];
             *self

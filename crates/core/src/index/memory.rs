@@ -40,4 +40,13 @@ impl KeyframeMemory for Index {
     fn sample_tag(&self, row: usize) -> u32 {
         self.tags[row]
     }
+
+    fn nearest(
+        &self,
+        query: &[f32],
+        count: usize,
+        keep: &(dyn Fn(usize) -> bool + Sync),
+    ) -> Option<Vec<usize>> {
+        self.nearest_rows(query, count, keep)
+    }
 }

@@ -23,6 +23,8 @@
 //!   stored keyframes are (map spacing, keyframes near a place);
 //! - `restore`: rebuilding the index from a snapshot;
 //! - `grouping`: sorting rows by map so a scoped scan reads long runs;
+//! - `neighbours`: the neighbour graph (the approximate first stage of a
+//!   large query) kept in step with the rows;
 //! - `memory`: the view of the index that ranking reads
 //!   ([`KeyframeMemory`](crate::vpr::memory::KeyframeMemory)).
 
@@ -30,6 +32,7 @@ mod changes;
 mod eligible;
 mod grouping;
 mod memory;
+mod neighbours;
 mod places;
 mod restore;
 mod table;
@@ -37,6 +40,7 @@ mod table;
 mod tests;
 
 pub use eligible::{RowEligibility, PARTITION_MAX_SHARE};
+pub use neighbours::graph_key;
 pub use grouping::{RowGrouping, GROUP_TAIL_ROWS, GROUP_WINDOW_ROWS, REGROUP_DISPLACED_ROWS};
 pub use places::OPERATING_POINT_REFRESH_S;
 pub use restore::{IndexRestore, RestoreError};

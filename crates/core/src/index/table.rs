@@ -9,6 +9,7 @@
 use std::collections::{BTreeMap, HashMap};
 use std::sync::Mutex;
 
+use crate::engine::graph::NeighbourGraph;
 use crate::engine::matrix::DescriptorMatrix;
 use crate::keyframe::{
     KeyframeKey, ObjectObservation, Pose, SceneClass, SemanticKeyframe, SessionKey,
@@ -115,6 +116,22 @@ pub struct Index {
     /// Changes to the rows so far: a planned grouping applies only to the
     /// index it was planned on.
     pub(super) changes: u64,
+    /// The neighbour graph, where one is kept (see `neighbours`).
+    pub(super) neighbours: Option<Neighbours>,
+    /// Whether a neighbour graph was asked for (it starts with the first
+    /// descriptor when the length was not known yet).
+    pub(super) graph_wanted: bool,
+}
+
+/// The neighbour graph and the rows its keys name (see `neighbours`).
+#[derive(Debug)]
+pub(super) struct Neighbours {
+    pub(super) graph: NeighbourGraph,
+    /// Graph key of each keyframe in the graph → its row.
+    pub(super) rows: HashMap<u64, u32>,
+    /// Keyframes left out of the graph: their key's hash was another's,
+    /// or the graph refused them. Only an exact pass finds them.
+    pub(super) missing: usize,
 }
 
 /// An operating point and what it was estimated with.
@@ -148,6 +165,8 @@ impl Index {
             layout_epoch: 0,
             erasures: HashMap::new(),
             changes: 0,
+            neighbours: None,
+            graph_wanted: false,
         }
     }
 

@@ -36,6 +36,18 @@ pub trait KeyframeMemory: Sync {
     fn sample_tag(&self, row: usize) -> u32 {
         row as u32
     }
+    /// The rows of up to `count` stored keyframes whose descriptors are
+    /// nearest to `query`, among those `keep` accepts, nearest first, from
+    /// an approximate index (a neighbour graph); None for a memory that
+    /// keeps none, which is then always scanned in full.
+    fn nearest(
+        &self,
+        _query: &[f32],
+        _count: usize,
+        _keep: &(dyn Fn(usize) -> bool + Sync),
+    ) -> Option<Vec<usize>> {
+        None
+    }
 }
 
 /// A plain `Vec`-backed [`KeyframeMemory`] for tests and benchmarks.

@@ -53,6 +53,18 @@ pub struct VprParams {
     /// reads the f32 descriptors, `compressed` always the codes first. All
     /// three give the same answer ([`super::scan`]).
     pub scan: ScanMode,
+    /// Never take a query's candidates from the neighbour graph: every
+    /// answer comes from a full pass over the eligible keyframes.
+    pub exact: bool,
+    /// Eligible keyframes (the rows of the maps a query may see) from
+    /// which a query's SCAL candidates come from the store's neighbour
+    /// graph, where it keeps one, instead of a pass over all of them
+    /// ([`super::scan`]); below it the pass is exact.
+    pub approximate_from: usize,
+    /// Candidates the neighbour graph proposes; each is scored exactly
+    /// and the best `top_k` go on. More find the exact answer more often
+    /// and cost more.
+    pub approximate_candidates: usize,
     /// `λ_a`, weight of the area difference in the layout distance `d²`.
     pub lambda_a: f32,
     /// `σ_m`, width of the Gaussian spatial kernel `G`.
@@ -161,6 +173,14 @@ pub enum TemporalMode {
     Average,
 }
 
+/// Default of [`VprParams::approximate_from`]: where a query over the
+/// neighbour graph's candidates starts to cost less than the compressed
+/// pass over every eligible row (`humem bench scan`).
+pub const APPROXIMATE_FROM: usize = 50_000;
+
+/// Default of [`VprParams::approximate_candidates`].
+pub const APPROXIMATE_CANDIDATES: usize = 100;
+
 impl Default for VprParams {
     fn default() -> Self {
         VprParams {
@@ -170,6 +190,9 @@ impl Default for VprParams {
             temporal: TemporalMode::Support,
             top_k: 25,
             scan: ScanMode::Auto,
+            exact: false,
+            approximate_from: APPROXIMATE_FROM,
+            approximate_candidates: APPROXIMATE_CANDIDATES,
             lambda_a: 1.0,
             sigma_m: 0.25,
             tau_g: 0.6,
@@ -243,6 +266,9 @@ impl VprParams {
         }
         if self.top_k == 0 {
             return Err("top_k must be >= 1".to_string());
+        }
+        if self.approximate_candidates == 0 {
+            return Err("approximate_candidates must be >= 1".to_string());
         }
         non_negative("lambda_a", self.lambda_a)?;
         if !(self.sigma_m.is_finite() && self.sigma_m > 0.0) {

@@ -124,11 +124,69 @@ where
     } else {
         matrix.len()
     };
+    if let Some(admitted) = approximate_for(params, eligible) {
+        if let Some(scan) = approximate_scan(params, &side, memory, eligible, admitted) {
+            return scan;
+        }
+    }
     if codes_first_from(params.scan).is_some_and(|from| rows >= from) {
         compressed_scan(params, &side, memory, eligible, visit)
     } else {
         exact_scan(params, &side, memory, eligible, visit)
     }
+}
+
+/// The planner: the eligible rows a query may be answered from, when they
+/// are enough for the neighbour graph's candidates to take the place of a
+/// full pass (`approximate_from`, not `exact`); None: a full pass.
+fn approximate_for<E: RowFilter + ?Sized>(params: &VprParams, eligible: &E) -> Option<usize> {
+    let admitted = eligible.admitted()?;
+    (!params.exact && admitted >= params.approximate_from).then_some(admitted)
+}
+
+/// The approximate pass: the neighbour graph's `approximate_candidates`
+/// eligible rows nearest to the current observation, each scored exactly
+/// (with its temporal context), the best `top_k` kept; the null model from
+/// the same sample a full pass takes, with `admitted` standing for the
+/// eligible count. None where the memory keeps no graph.
+fn approximate_scan<M, E>(
+    params: &VprParams,
+    side: &QuerySide,
+    memory: &M,
+    eligible: &E,
+    admitted: usize,
+) -> Option<ScalScan>
+where
+    M: KeyframeMemory + ?Sized,
+    E: RowFilter + ?Sized,
+{
+    let count = params.approximate_candidates.max(params.top_k);
+    let keep = |row: usize| eligible.test(row);
+    let candidates = memory.nearest(side.descriptors[0], count, &keep)?;
+    let mut hits = side.exact_hits(params, memory, &candidates);
+    top_k(&mut hits, params.top_k);
+    let matrix = memory.descriptors();
+    let kernel = CodeKernel::detect();
+    let codes: Vec<QueryCode> = side
+        .descriptors
+        .iter()
+        .map(|q| QueryCode::new(q, matrix.codes(), kernel))
+        .collect();
+    let sampler = Sampler::new(NullModel::stride(admitted));
+    let sample: Vec<usize> = (0..matrix.len())
+        .into_par_iter()
+        .with_min_len(BLOCK)
+        .filter(|&row| sampler.keeps(memory.sample_tag(row)) && eligible.test(row))
+        .collect();
+    let location = sample_median(params, side, memory, &codes, kernel, &sample);
+    Some(ScalScan {
+        hits,
+        null: NullModel {
+            location,
+            samples: admitted,
+        },
+        eligible: admitted,
+    })
 }
 
 /// The fewest stored rows from which `mode` scans the codes first on this

@@ -1,0 +1,304 @@
+//! The approximate first stage: a navigable small-world graph (HNSW) over
+//! the stored descriptors, which finds a query's nearest rows by visiting a
+//! few thousand of them instead of all.
+//!
+//! An exact pass costs one read of every eligible row, so a fleet's merge
+//! query grows with the whole fleet's store. The graph's search grows with
+//! its logarithm. It is USearch's graph (a maintained crate with filtered
+//! search, removal, and saving to a file); this module only decides what it
+//! stores and hides its error type:
+//!
+//! - each row is stored as its one-byte code (scaled by its largest
+//!   magnitude, as [`codes`](super::codes) does), under the cosine metric:
+//!   the scaling is undone by the cosine, a quarter of the f32 bytes are
+//!   read, and unit descriptors rank as their dot products do;
+//! - rows are named by stable 64-bit keys chosen by the caller, not by row
+//!   position: rows move (erasures fill holes, grouping sorts them) and the
+//!   graph is saved and loaded with an index whose rows are in another
+//!   order;
+//! - a search takes a filter over keys, applied while the graph is walked
+//!   (not to its results), so a query that may see a part of the store
+//!   still gets its `count` nearest of that part.
+//!
+//! The graph only proposes candidates: every one is scored exactly by the
+//! caller, so its error is only in what it may miss.
+
+use std::path::Path;
+
+use usearch::{Index as Hnsw, IndexOptions, MetricKind, ScalarKind};
+
+/// Links per node (HNSW's `M`): 16 is the usual default; fewer links make
+/// inserts cheaper and recall lower (`humem bench scan`).
+pub const CONNECTIVITY: usize = 16;
+
+/// Candidates kept while a row is inserted (`efConstruction`).
+pub const EXPANSION_ADD: usize = 128;
+
+/// Candidates kept while a query walks the graph (`ef`), unless the query
+/// asks for more results than that.
+pub const EXPANSION_SEARCH: usize = 64;
+
+/// Concurrent searches the graph keeps scratch space for; more wait.
+const SEARCH_THREADS: usize = 64;
+
+/// Why the graph could not do what was asked.
+#[derive(Debug, thiserror::Error)]
+pub enum GraphError {
+    /// USearch refused (out of memory, a file it cannot read, …).
+    #[error("neighbour graph: {0}")]
+    Native(String),
+    /// A saved graph was made for descriptors of another length.
+    #[error("the saved neighbour graph holds {found}-value descriptors, the store {expected}")]
+    Dimension {
+        /// The index's descriptor length.
+        expected: usize,
+        /// The saved graph's.
+        found: usize,
+    },
+}
+
+/// USearch's error (a C++ exception) as a [`GraphError`].
+fn native(e: impl std::fmt::Display) -> GraphError {
+    GraphError::Native(e.to_string())
+}
+
+/// An HNSW graph over descriptors of one length, keyed by stable keys.
+pub struct NeighbourGraph {
+    graph: Hnsw,
+    dim: usize,
+}
+
+impl std::fmt::Debug for NeighbourGraph {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.debug_struct("NeighbourGraph")
+            .field("dim", &self.dim)
+            .field("len", &self.len())
+            .finish()
+    }
+}
+
+fn options(dim: usize) -> IndexOptions {
+    IndexOptions {
+        dimensions: dim,
+        metric: MetricKind::Cos,
+        quantization: ScalarKind::I8,
+        connectivity: CONNECTIVITY,
+        expansion_add: EXPANSION_ADD,
+        expansion_search: EXPANSION_SEARCH,
+        multi: false,
+    }
+}
+
+impl NeighbourGraph {
+    /// An empty graph for descriptors of length `dim` (> 0).
+    pub fn new(dim: usize) -> Result<Self, GraphError> {
+        let graph = Hnsw::new(&options(dim)).map_err(native)?;
+        graph.reserve_capacity_and_threads(1024, SEARCH_THREADS).map_err(native)?;
+        Ok(NeighbourGraph { graph, dim })
+    }
+
+    /// Descriptor length.
+    pub fn dim(&self) -> usize {
+        self.dim
+    }
+
+    /// Rows stored.
+    pub fn len(&self) -> usize {
+        self.graph.size()
+    }
+
+    /// Whether no row is stored.
+    pub fn is_empty(&self) -> bool {
+        self.len() == 0
+    }
+
+    /// Whether `key` is stored.
+    pub fn contains(&self, key: u64) -> bool {
+        self.graph.contains(key)
+    }
+
+    /// Bytes the graph holds in memory (codes, links and tables).
+    pub fn memory_bytes(&self) -> usize {
+        self.graph.memory_usage()
+    }
+
+    /// Room for `more` rows beyond those stored, so that concurrent
+    /// [`NeighbourGraph::add_shared`] calls need not grow it.
+    pub fn reserve(&self, more: usize) -> Result<(), GraphError> {
+        let wanted = self.len() + more;
+        if wanted > self.graph.capacity() {
+            // Doubling keeps the growth amortised, as a Vec's.
+            let capacity = wanted.max(2 * self.graph.capacity());
+            self.graph
+                .reserve_capacity_and_threads(capacity, SEARCH_THREADS).map_err(native)?;
+        }
+        Ok(())
+    }
+
+    /// Stores `row` under `key`, replacing what `key` held.
+    pub fn add(&mut self, key: u64, row: &[f32]) -> Result<(), GraphError> {
+        self.reserve(1)?;
+        self.add_shared(key, row)
+    }
+
+    /// [`NeighbourGraph::add`] from several threads at once; room must have
+    /// been made with [`NeighbourGraph::reserve`].
+    pub fn add_shared(&self, key: u64, row: &[f32]) -> Result<(), GraphError> {
+        debug_assert_eq!(row.len(), self.dim);
+        if self.graph.contains(key) {
+            self.graph.remove(key).map_err(native)?;
+        }
+        self.graph.add(key, &code(row)).map_err(native)?;
+        Ok(())
+    }
+
+    /// Forgets `key`; false if it was not stored.
+    pub fn remove(&mut self, key: u64) -> Result<bool, GraphError> {
+        Ok(self.graph.remove(key).map_err(native)? > 0)
+    }
+
+    /// The keys of up to `count` stored rows nearest to `query` among
+    /// those `keep` accepts, nearest first. The graph's walk keeps
+    /// [`EXPANSION_SEARCH`] candidates, or `count` where that is more.
+    pub fn search(
+        &self,
+        query: &[f32],
+        count: usize,
+        keep: impl Fn(u64) -> bool,
+    ) -> Result<Vec<u64>, GraphError> {
+        if self.is_empty() || count == 0 {
+            return Ok(Vec::new());
+        }
+        let found = self.graph.filtered_search(&code(query), count, keep).map_err(native)?;
+        Ok(found.keys)
+    }
+
+    /// Writes the graph to `path` (one file, USearch's format).
+    pub fn save(&self, path: &Path) -> Result<(), GraphError> {
+        self.graph.save(&path_str(path)?).map_err(native)?;
+        Ok(())
+    }
+
+    /// The graph saved at `path`, for descriptors of length `dim`.
+    pub fn load(path: &Path, dim: usize) -> Result<Self, GraphError> {
+        let path = path_str(path)?;
+        let meta = Hnsw::metadata(&path).map_err(native)?;
+        if meta.dimensions as usize != dim {
+            return Err(GraphError::Dimension {
+                expected: dim,
+                found: meta.dimensions as usize,
+            });
+        }
+        let graph = Hnsw::new(&options(dim)).map_err(native)?;
+        graph.load(&path).map_err(native)?;
+        let loaded = NeighbourGraph { graph, dim };
+        loaded.reserve(1024)?;
+        Ok(loaded)
+    }
+}
+
+fn path_str(path: &Path) -> Result<String, GraphError> {
+    path.to_str()
+        .map(str::to_string)
+        .ok_or_else(|| GraphError::Native(format!("{}: not UTF-8", path.display())))
+}
+
+/// `row` scaled by its largest magnitude to integers in `[−127, 127]`
+/// (all zeros for a zero or non-finite row, which then matches nothing).
+fn code(row: &[f32]) -> Vec<i8> {
+    let max = row.iter().fold(0.0f32, |m, v| m.max(v.abs()));
+    if !(max > 0.0 && row.iter().all(|v| v.is_finite())) {
+        return vec![0; row.len()];
+    }
+    let scale = 127.0 / max;
+    row.iter()
+        .map(|&v| {
+            let x = v * scale;
+            (x + 0.5f32.copysign(x)).clamp(-127.0, 127.0) as i8
+        })
+        .collect()
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::synthetic::{place_descriptor, Rng};
+
+    fn rows(n: usize, dim: usize) -> Vec<Vec<f32>> {
+        let mut noise = Rng::new(3);
+        (0..n)
+            .map(|i| place_descriptor(dim, (i / 4) as u64, &mut noise))
+            .collect()
+    }
+
+    #[test]
+    fn finds_the_nearest_row_among_those_the_filter_keeps() {
+        let data = rows(2_000, 64);
+        let mut graph = NeighbourGraph::new(64).unwrap();
+        for (i, row) in data.iter().enumerate() {
+            graph.add(1000 + i as u64, row).unwrap();
+        }
+        assert_eq!(graph.len(), 2_000);
+        // A stored row finds itself; with it filtered out, one of its place.
+        let found = graph.search(&data[41], 5, |_| true).unwrap();
+        assert_eq!(found[0], 1041);
+        let found = graph.search(&data[41], 5, |k| k != 1041).unwrap();
+        assert!(!found.contains(&1041));
+        assert!((1040..1044).contains(&found[0]), "{found:?}");
+        // Only even keys.
+        let found = graph.search(&data[7], 20, |k| k % 2 == 0).unwrap();
+        assert_eq!(found.len(), 20);
+        assert!(found.iter().all(|k| k % 2 == 0));
+    }
+
+    #[test]
+    fn replaced_and_removed_rows_are_found_as_they_are_now() {
+        let data = rows(300, 32);
+        let mut graph = NeighbourGraph::new(32).unwrap();
+        for (i, row) in data.iter().enumerate() {
+            graph.add(i as u64, row).unwrap();
+        }
+        // Key 5 now holds row 200's descriptor.
+        graph.add(5, &data[200]).unwrap();
+        assert_eq!(graph.len(), 300);
+        let found = graph.search(&data[200], 2, |_| true).unwrap();
+        assert!(found.contains(&5) && found.contains(&200), "{found:?}");
+        assert!(graph.remove(200).unwrap());
+        assert!(!graph.remove(200).unwrap());
+        assert_eq!(graph.search(&data[200], 1, |_| true).unwrap(), vec![5]);
+    }
+
+    #[test]
+    fn a_saved_graph_loads_with_the_same_answers() {
+        let data = rows(500, 48);
+        let mut graph = NeighbourGraph::new(48).unwrap();
+        for (i, row) in data.iter().enumerate() {
+            graph.add(i as u64 * 7, row).unwrap();
+        }
+        let dir = tempfile::tempdir().unwrap();
+        let path = dir.path().join("graph");
+        graph.save(&path).unwrap();
+        let loaded = NeighbourGraph::load(&path, 48).unwrap();
+        assert_eq!(loaded.len(), 500);
+        for q in [0, 17, 499] {
+            assert_eq!(
+                loaded.search(&data[q], 10, |_| true).unwrap(),
+                graph.search(&data[q], 10, |_| true).unwrap()
+            );
+        }
+        assert!(matches!(
+            NeighbourGraph::load(&path, 64),
+            Err(GraphError::Dimension { expected: 64, found: 48 })
+        ));
+        let mut more = loaded;
+        more.add(1, &data[3]).unwrap();
+        assert_eq!(more.len(), 501);
+    }
+
+    #[test]
+    fn codes_use_the_whole_byte_range() {
+        assert_eq!(code(&[0.25, -1.0, 0.0]), vec![32, -127, 0]);
+        assert_eq!(code(&[0.0, 0.0]), vec![0, 0]);
+        assert_eq!(code(&[f32::NAN, 1.0]), vec![0, 0]);
+    }
+}
