@@ -54,6 +54,7 @@ pub mod annotations;
 pub mod args;
 pub mod baseline;
 pub mod dataset;
+pub mod graph_bench;
 pub mod degrade;
 mod images;
 pub mod ingest;

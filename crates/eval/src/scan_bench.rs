@@ -87,7 +87,7 @@ fn store(rows: usize, dim: usize, robots: usize) -> Index {
 
 /// Keyframes of a synthetic fleet, as [`store`] holds them; also what
 /// `humem bench restart` stores.
-pub(crate) struct SyntheticFleet {
+pub struct SyntheticFleet {
     places: u64,
     dim: usize,
     robots: usize,
@@ -96,7 +96,7 @@ pub(crate) struct SyntheticFleet {
 
 impl SyntheticFleet {
     /// A fleet of `robots` whose `rows` keyframes revisit places in runs.
-    pub(crate) fn new(rows: usize, dim: usize, robots: usize) -> Self {
+    pub fn new(rows: usize, dim: usize, robots: usize) -> Self {
         SyntheticFleet {
             places: (rows / KEYFRAMES_PER_PLACE).max(1) as u64,
             dim,
@@ -106,7 +106,7 @@ impl SyntheticFleet {
     }
 
     /// Keyframe `i`: robot `i % robots`, its `i / robots`-th keyframe.
-    pub(crate) fn keyframe(&mut self, i: usize) -> SemanticKeyframe {
+    pub fn keyframe(&mut self, i: usize) -> SemanticKeyframe {
         let robot = i % self.robots;
         let step = (i / self.robots) as u64;
         // Each robot walks through places in runs of 4 keyframes.

@@ -57,6 +57,12 @@ async fn main() -> anyhow::Result<()> {
             humem_eval::perception_bench::perception(config, args).await
         }
         #[cfg(feature = "eval")]
+        Command::Bench(BenchCommand::Graph(args)) => {
+            let config = Config::load(cli.config.as_deref(), figment::Figment::new())?;
+            init_logging(LogFormat::Plain, "warn");
+            humem_eval::graph_bench::graph(config, args)
+        }
+        #[cfg(feature = "eval")]
         Command::Bench(BenchCommand::Scan(args)) => {
             let config = Config::load(cli.config.as_deref(), figment::Figment::new())?;
             init_logging(LogFormat::Plain, "warn");

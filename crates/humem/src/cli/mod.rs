@@ -150,6 +150,10 @@ pub enum BenchCommand {
     /// A SCAL-only query on large synthetic stores (100k and 1M keyframes by
     /// default) against an exact f32 dot-product scan, on one core and all.
     Scan(humem_eval::scan_bench::ScanBench),
+    /// The neighbour graph (the approximate first stage of a large query)
+    /// against the exact pass: build time, memory, and per number of
+    /// candidates the latency and the recall of the exact top-1 and top-5.
+    Graph(humem_eval::graph_bench::GraphBench),
     /// Opening a large store from its index snapshot and journal against
     /// rebuilding the index from every stored record.
     Restart(humem_eval::restart_bench::RestartBench),

@@ -1,0 +1,337 @@
+//! `humem bench graph`: the neighbour graph against the exact pass on a
+//! large synthetic store: what building it costs (time, memory per
+//! keyframe), and per number of candidates a query's latency on one core
+//! and how often its answer is the exact pass's (recall of the exact top-1
+//! and top-5).
+//!
+//! Two recalls are measured. The SCAL answer (temporal context, scene
+//! modulation, the query path's scoring) against the exact SCAL pass over
+//! the same eligible rows; and, for a side-by-side run with faiss on the
+//! same vectors (`tools/faiss_side_by_side.py`, which reads what
+//! `--export` writes), the plain descriptor search: the graph's candidates
+//! re-scored by their f32 dot products against the exact inner-product top-1.
+//!
+//! The store is the one `humem bench scan` builds (robots revisiting
+//! places, about 20 keyframes a place); queries are new visits to stored
+//! places by a robot that has no keyframe in the store, over every map.
+
+use std::io::Write;
+use std::path::PathBuf;
+use std::time::{Duration, Instant};
+
+use anyhow::{ensure, Context};
+
+use humem_core::engine::kernels::dot_f32_wide;
+use humem_core::index::Index;
+use humem_core::keyframe::{Features, SessionKey};
+use humem_core::synthetic::{place_descriptor, Rng};
+use humem_core::vpr::eligibility::{QueryContext, Scope};
+use humem_core::vpr::memory::KeyframeMemory;
+use humem_core::vpr::params::VprParams;
+use humem_core::vpr::scal::ScalQuery;
+use humem_core::vpr::scan::scal_scan;
+use humem_server::config::Config;
+
+use crate::scan_bench::SyntheticFleet;
+
+/// Options of `humem bench graph`.
+#[derive(Debug, Clone, clap::Args)]
+pub struct GraphBench {
+    /// Store sizes, in keyframes.
+    #[arg(long, value_delimiter = ',', default_values_t = [100_000])]
+    pub rows: Vec<usize>,
+    /// Descriptor length.
+    #[arg(long, default_value_t = 1280)]
+    pub dim: usize,
+    /// Queries per store size.
+    #[arg(long, default_value_t = 200)]
+    pub queries: usize,
+    /// Robots sharing the store.
+    #[arg(long, default_value_t = 32)]
+    pub robots: usize,
+    /// Candidates the graph proposes, one row of the table each.
+    #[arg(long, value_delimiter = ',', default_values_t = [25, 50, 100, 200, 400])]
+    pub candidates: Vec<usize>,
+    /// Writes the last store's descriptors, the queries and the exact
+    /// inner-product top-5 here (raw little-endian f32 and u32), for
+    /// `tools/faiss_side_by_side.py`.
+    #[arg(long)]
+    pub export: Option<PathBuf>,
+}
+
+/// One store size's measurements.
+struct Measured {
+    rows: usize,
+    build: Duration,
+    graph_bytes: usize,
+    exact_ms: f64,
+    curves: Vec<Point>,
+}
+
+/// One number of candidates.
+struct Point {
+    candidates: usize,
+    scal_ms: f64,
+    scal_top1: f64,
+    scal_top5: f64,
+    search_ms: f64,
+    search_top1: f64,
+}
+
+/// Runs the benchmark and prints its table.
+pub fn graph(config: Config, args: GraphBench) -> anyhow::Result<()> {
+    ensure!(args.queries > 0, "--queries must be at least 1");
+    ensure!(args.robots > 0 && args.dim > 0, "--robots and --dim must be at least 1");
+    ensure!(
+        args.candidates.iter().all(|&c| c > 0),
+        "--candidates must be at least 1"
+    );
+    let one_core = rayon::ThreadPoolBuilder::new()
+        .num_threads(1)
+        .build()
+        .context("building a one-thread pool")?;
+    let mut table = Vec::new();
+    for (i, &rows) in args.rows.iter().enumerate() {
+        let last = i + 1 == args.rows.len();
+        table.push(measure(&config, &args, rows, &one_core, last)?);
+    }
+    print(&args, &table);
+    Ok(())
+}
+
+fn measure(
+    config: &Config,
+    args: &GraphBench,
+    rows: usize,
+    one_core: &rayon::ThreadPool,
+    last: bool,
+) -> anyhow::Result<Measured> {
+    eprintln!("building a store of {rows} × {} …", args.dim);
+    let mut index = Index::new(args.dim);
+    let mut fleet = SyntheticFleet::new(rows, args.dim, args.robots);
+    for i in 0..rows {
+        index.upsert(fleet.keyframe(i));
+    }
+    eprintln!("building its neighbour graph on {} threads …", rayon::current_num_threads());
+    let started = Instant::now();
+    index.keep_neighbour_graph(None)?;
+    let build = started.elapsed();
+    let graph_bytes = index.neighbour_graph().map_or(0, |g| g.memory_bytes());
+
+    let queries = queries(&fleet_places(rows), args.dim, args.queries);
+    let context = QueryContext {
+        session: SessionKey {
+            robot_id: "visitor".into(),
+            session_id: "session".into(),
+        },
+        keyframe_id: None,
+        frame_id: 0,
+        map_id: 0,
+        min_frame_gap: 0,
+        scope: Scope::OtherMaps,
+        readable_robots: None,
+    };
+    let filter = index.eligibility(&context);
+    let exact = VprParams {
+        exact: true,
+        ..config.vpr.clone()
+    };
+    let run = |params: &VprParams, q: &Features| {
+        let query = ScalQuery {
+            history: vec![q],
+        };
+        one_core.install(|| {
+            let started = Instant::now();
+            let hits = scal_scan(params, &query, &index, &filter).hits;
+            (started.elapsed(), hits)
+        })
+    };
+    let reference: Vec<_> = queries.iter().map(|q| run(&exact, q)).collect();
+    let exact_ms = median_ms(reference.iter().map(|r| r.0));
+    let truth: Vec<usize> = queries
+        .iter()
+        .map(|q| dot_top(&index, &q.descriptor, 5))
+        .map(|top| top[0])
+        .collect();
+    if last {
+        if let Some(dir) = &args.export {
+            export(dir, &index, &queries)?;
+        }
+    }
+    let mut curves = Vec::new();
+    for &candidates in &args.candidates {
+        let params = VprParams {
+            approximate_from: 0,
+            approximate_candidates: candidates,
+            ..config.vpr.clone()
+        };
+        let (mut times, mut top1, mut top5) = (Vec::new(), 0usize, 0usize);
+        for (q, (_, want)) in queries.iter().zip(&reference) {
+            let (took, hits) = run(&params, q);
+            times.push(took);
+            top1 += usize::from(hits.first().map(|h| h.row) == want.first().map(|h| h.row));
+            let want5: Vec<usize> = want.iter().take(5).map(|h| h.row).collect();
+            top5 += hits.iter().take(5).filter(|h| want5.contains(&h.row)).count();
+        }
+        let (mut search_times, mut search_top1) = (Vec::new(), 0usize);
+        for (q, &want) in queries.iter().zip(&truth) {
+            let started = Instant::now();
+            let found = index
+                .nearest_rows(&q.descriptor, candidates, &|_| true)
+                .unwrap_or_default();
+            let best = found.into_iter().max_by(|&a, &b| {
+                let (da, db) = (
+                    dot_f32_wide(&q.descriptor, &index.descriptor(a)),
+                    dot_f32_wide(&q.descriptor, &index.descriptor(b)),
+                );
+                da.total_cmp(&db).then(b.cmp(&a))
+            });
+            search_times.push(started.elapsed());
+            search_top1 += usize::from(best == Some(want));
+        }
+        let n = queries.len() as f64;
+        curves.push(Point {
+            candidates,
+            scal_ms: median_ms(times.into_iter()),
+            scal_top1: top1 as f64 / n,
+            scal_top5: top5 as f64 / (5.0 * n),
+            search_ms: median_ms(search_times.into_iter()),
+            search_top1: search_top1 as f64 / n,
+        });
+    }
+    Ok(Measured {
+        rows,
+        build,
+        graph_bytes,
+        exact_ms,
+        curves,
+    })
+}
+
+/// Places of the store [`SyntheticFleet`] makes of `rows` keyframes.
+fn fleet_places(rows: usize) -> u64 {
+    (rows / 20).max(1) as u64
+}
+
+/// `n` new visits to stored places: each a place's centre plus new noise.
+fn queries(places: &u64, dim: usize, n: usize) -> Vec<Features> {
+    let mut noise = Rng::new(0xbe9c);
+    let mut pick = Rng::new(77);
+    (0..n)
+        .map(|_| Features {
+            descriptor: place_descriptor(dim, pick.next() % places, &mut noise),
+            ..Features::default()
+        })
+        .collect()
+}
+
+/// The `k` rows with the highest inner product with `query`, best first
+/// (ties: lower row).
+fn dot_top(index: &Index, query: &[f32], k: usize) -> Vec<usize> {
+    let mut all: Vec<(f32, usize)> = (0..index.len())
+        .map(|r| (dot_f32_wide(query, &index.descriptor(r)), r))
+        .collect();
+    let k = k.min(all.len());
+    if k == 0 {
+        return Vec::new();
+    }
+    all.select_nth_unstable_by(k - 1, |a, b| b.0.total_cmp(&a.0).then(a.1.cmp(&b.1)));
+    all.truncate(k);
+    all.sort_by(|a, b| b.0.total_cmp(&a.0).then(a.1.cmp(&b.1)));
+    all.into_iter().map(|(_, r)| r).collect()
+}
+
+/// `base.f32` (rows × dim), `queries.f32` (queries × dim) and
+/// `truth.u32` (queries × 5, the exact inner-product top-5) in `dir`.
+fn export(dir: &std::path::Path, index: &Index, queries: &[Features]) -> anyhow::Result<()> {
+    std::fs::create_dir_all(dir).with_context(|| format!("creating {}", dir.display()))?;
+    let write = |name: &str, bytes: &[u8]| {
+        let path = dir.join(name);
+        std::fs::File::create(&path)
+            .and_then(|mut f| f.write_all(bytes))
+            .with_context(|| format!("writing {}", path.display()))
+    };
+    let matrix = index.descriptors();
+    let base = matrix.rows(0, matrix.len());
+    write("base.f32", bytemuck::cast_slice(&base))?;
+    let q: Vec<f32> = queries.iter().flat_map(|q| q.descriptor.iter().copied()).collect();
+    write("queries.f32", bytemuck::cast_slice(&q))?;
+    let truth: Vec<u32> = queries
+        .iter()
+        .flat_map(|q| dot_top(index, &q.descriptor, 5))
+        .map(|r| r as u32)
+        .collect();
+    write("truth.u32", bytemuck::cast_slice(&truth))?;
+    eprintln!("exported {} × {} to {}", matrix.len(), matrix.dim(), dir.display());
+    Ok(())
+}
+
+fn median_ms(times: impl Iterator<Item = Duration>) -> f64 {
+    let mut ms: Vec<f64> = times.map(|t| t.as_secs_f64() * 1e3).collect();
+    if ms.is_empty() {
+        return 0.0;
+    }
+    ms.sort_by(f64::total_cmp);
+    ms[ms.len() / 2]
+}
+
+fn print(args: &GraphBench, table: &[Measured]) {
+    println!(
+        "neighbour graph against the exact pass: {}-d, {} robots, {} queries over every other map, one core per query",
+        args.dim, args.robots, args.queries
+    );
+    for m in table {
+        println!();
+        println!(
+            "{} keyframes: graph built in {:.1} s on {} threads, {:.0} bytes a keyframe; exact SCAL pass {:.2} ms",
+            m.rows,
+            m.build.as_secs_f64(),
+            rayon::current_num_threads(),
+            m.graph_bytes as f64 / m.rows.max(1) as f64,
+            m.exact_ms
+        );
+        println!("| candidates | SCAL ms | × exact | SCAL top-1 | SCAL top-5 | search ms | search top-1 |");
+        println!("| ---: | ---: | ---: | ---: | ---: | ---: | ---: |");
+        for p in &m.curves {
+            println!(
+                "| {} | {:.3} | {:.3} | {:.3} | {:.3} | {:.3} | {:.3} |",
+                p.candidates,
+                p.scal_ms,
+                p.scal_ms / m.exact_ms.max(1e-9),
+                p.scal_top1,
+                p.scal_top5,
+                p.search_ms,
+                p.search_top1
+            );
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn a_small_store_is_measured_and_exported() {
+        let dir = tempfile::tempdir().unwrap();
+        let args = GraphBench {
+            rows: vec![3_000],
+            dim: 32,
+            queries: 20,
+            robots: 4,
+            candidates: vec![50, 200],
+            export: Some(dir.path().to_path_buf()),
+        };
+        let pool = rayon::ThreadPoolBuilder::new().num_threads(1).build().unwrap();
+        let m = measure(&Config::default(), &args, 3_000, &pool, true).unwrap();
+        assert_eq!(m.curves.len(), 2);
+        assert!(m.graph_bytes > 0);
+        // 200 candidates of 3 000 rows find the exact answer nearly always.
+        assert!(m.curves[1].scal_top1 >= 0.9, "{}", m.curves[1].scal_top1);
+        assert!(m.curves[1].search_top1 >= 0.9, "{}", m.curves[1].search_top1);
+        let base = std::fs::metadata(dir.path().join("base.f32")).unwrap().len();
+        assert_eq!(base, 3_000 * 32 * 4);
+        let truth = std::fs::metadata(dir.path().join("truth.u32")).unwrap().len();
+        assert_eq!(truth, 20 * 5 * 4);
+    }
+}
