@@ -162,3 +162,57 @@ async fn the_load_generator_reports_what_it_achieved() {
         Some(insert[1])
     );
 }
+
+#[tokio::test(flavor = "multi_thread")]
+async fn the_load_generator_asks_loop_and_merge_queries_and_checks_the_graph_against_exact() {
+    let dir = tempfile::tempdir().unwrap();
+    // Every merge query takes its candidates from the neighbour graph.
+    let server = Server::start_with(dir.path(), &["HUMEM_VPR__APPROXIMATE_FROM=1"]);
+    let text = output_of(
+        std::process::Command::new(env!("CARGO_BIN_EXE_humem")).args([
+            "load",
+            "--server",
+            &server.url,
+            "--robots",
+            "4",
+            "--rate",
+            "20",
+            "--duration",
+            "3",
+            "--scopes",
+            "same-map,other-maps",
+            "--exact-every",
+            "3",
+        ]),
+    );
+    let row = |call: &str| -> Vec<f64> {
+        text.lines()
+            .find(|l| l.starts_with(call))
+            .unwrap_or_else(|| panic!("no {call} row in\n{text}"))
+            .split_whitespace()
+            .skip(1)
+            .map(|v| v.parse().unwrap())
+            .collect()
+    };
+    let insert = row("insert");
+    for scope in ["query/same-map", "query/other-maps"] {
+        let query = row(scope);
+        assert_eq!(
+            query[0], insert[1],
+            "one {scope} per stored keyframe: {text}"
+        );
+        assert_eq!(query[3], 0.0, "{text}");
+    }
+    // "exact check: S of C sampled queries (P %) …"
+    let check = text
+        .lines()
+        .find(|l| l.starts_with("exact check:"))
+        .unwrap_or_else(|| panic!("no exact check in\n{text}"));
+    let numbers: Vec<f64> = check
+        .split(|c: char| !(c.is_ascii_digit() || c == '.'))
+        .filter_map(|w| w.parse().ok())
+        .collect();
+    let (same, compared) = (numbers[0], numbers[1]);
+    assert!(compared >= 20.0, "{text}");
+    assert!(same >= 0.9 * compared, "{text}");
+}

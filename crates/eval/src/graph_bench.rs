@@ -81,7 +81,10 @@ struct Point {
 /// Runs the benchmark and prints its table.
 pub fn graph(config: Config, args: GraphBench) -> anyhow::Result<()> {
     ensure!(args.queries > 0, "--queries must be at least 1");
-    ensure!(args.robots > 0 && args.dim > 0, "--robots and --dim must be at least 1");
+    ensure!(
+        args.robots > 0 && args.dim > 0,
+        "--robots and --dim must be at least 1"
+    );
     ensure!(
         args.candidates.iter().all(|&c| c > 0),
         "--candidates must be at least 1"
@@ -112,7 +115,10 @@ fn measure(
     for i in 0..rows {
         index.upsert(fleet.keyframe(i));
     }
-    eprintln!("building its neighbour graph on {} threads …", rayon::current_num_threads());
+    eprintln!(
+        "building its neighbour graph on {} threads …",
+        rayon::current_num_threads()
+    );
     let started = Instant::now();
     index.keep_neighbour_graph(None)?;
     let build = started.elapsed();
@@ -137,9 +143,7 @@ fn measure(
         ..config.vpr.clone()
     };
     let run = |params: &VprParams, q: &Features| {
-        let query = ScalQuery {
-            history: vec![q],
-        };
+        let query = ScalQuery { history: vec![q] };
         one_core.install(|| {
             let started = Instant::now();
             let hits = scal_scan(params, &query, &index, &filter).hits;
@@ -171,7 +175,11 @@ fn measure(
             times.push(took);
             top1 += usize::from(hits.first().map(|h| h.row) == want.first().map(|h| h.row));
             let want5: Vec<usize> = want.iter().take(5).map(|h| h.row).collect();
-            top5 += hits.iter().take(5).filter(|h| want5.contains(&h.row)).count();
+            top5 += hits
+                .iter()
+                .take(5)
+                .filter(|h| want5.contains(&h.row))
+                .count();
         }
         let (mut search_times, mut search_top1) = (Vec::new(), 0usize);
         for (q, &want) in queries.iter().zip(&truth) {
@@ -254,7 +262,10 @@ fn export(dir: &std::path::Path, index: &Index, queries: &[Features]) -> anyhow:
     let matrix = index.descriptors();
     let base = matrix.rows(0, matrix.len());
     write("base.f32", bytemuck::cast_slice(&base))?;
-    let q: Vec<f32> = queries.iter().flat_map(|q| q.descriptor.iter().copied()).collect();
+    let q: Vec<f32> = queries
+        .iter()
+        .flat_map(|q| q.descriptor.iter().copied())
+        .collect();
     write("queries.f32", bytemuck::cast_slice(&q))?;
     let truth: Vec<u32> = queries
         .iter()
@@ -262,7 +273,12 @@ fn export(dir: &std::path::Path, index: &Index, queries: &[Features]) -> anyhow:
         .map(|r| r as u32)
         .collect();
     write("truth.u32", bytemuck::cast_slice(&truth))?;
-    eprintln!("exported {} × {} to {}", matrix.len(), matrix.dim(), dir.display());
+    eprintln!(
+        "exported {} × {} to {}",
+        matrix.len(),
+        matrix.dim(),
+        dir.display()
+    );
     Ok(())
 }
 
@@ -322,16 +338,27 @@ mod tests {
             candidates: vec![50, 200],
             export: Some(dir.path().to_path_buf()),
         };
-        let pool = rayon::ThreadPoolBuilder::new().num_threads(1).build().unwrap();
+        let pool = rayon::ThreadPoolBuilder::new()
+            .num_threads(1)
+            .build()
+            .unwrap();
         let m = measure(&Config::default(), &args, 3_000, &pool, true).unwrap();
         assert_eq!(m.curves.len(), 2);
         assert!(m.graph_bytes > 0);
         // 200 candidates of 3 000 rows find the exact answer nearly always.
         assert!(m.curves[1].scal_top1 >= 0.9, "{}", m.curves[1].scal_top1);
-        assert!(m.curves[1].search_top1 >= 0.9, "{}", m.curves[1].search_top1);
-        let base = std::fs::metadata(dir.path().join("base.f32")).unwrap().len();
+        assert!(
+            m.curves[1].search_top1 >= 0.9,
+            "{}",
+            m.curves[1].search_top1
+        );
+        let base = std::fs::metadata(dir.path().join("base.f32"))
+            .unwrap()
+            .len();
         assert_eq!(base, 3_000 * 32 * 4);
-        let truth = std::fs::metadata(dir.path().join("truth.u32")).unwrap().len();
+        let truth = std::fs::metadata(dir.path().join("truth.u32"))
+            .unwrap()
+            .len();
         assert_eq!(truth, 20 * 5 * 4);
     }
 }

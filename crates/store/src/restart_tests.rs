@@ -555,7 +555,13 @@ async fn the_neighbour_graph_is_saved_with_the_snapshot_and_replayed_changes_rea
     };
     {
         let store = open_with_graph(dir.path());
-        insert(&store, (0..30).map(|i| with(i, [1.0, i as f32 * 0.1, 0.0])).collect()).await;
+        insert(
+            &store,
+            (0..30)
+                .map(|i| with(i, [1.0, i as f32 * 0.1, 0.0]))
+                .collect(),
+        )
+        .await;
         assert_eq!(store.index().neighbour_graph().unwrap().len(), 30);
         store.snapshot().unwrap();
         assert!(graph_file::path(dir.path()).exists());

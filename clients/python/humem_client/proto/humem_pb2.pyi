@@ -254,7 +254,7 @@ class KeyframeRef(_message.Message):
     def __init__(self, robot_id: _Optional[str] = ..., session_id: _Optional[str] = ..., keyframe_id: _Optional[int] = ...) -> None: ...
 
 class QueryRequest(_message.Message):
-    __slots__ = ("robot_id", "session_id", "map_id", "frame_id", "keyframe_id", "features", "image", "predecessor_keyframe_ids", "scope", "robot_ids", "maps", "min_frame_gap", "top_n", "threshold", "layers", "kind", "min_log_sequence")
+    __slots__ = ("robot_id", "session_id", "map_id", "frame_id", "keyframe_id", "features", "image", "predecessor_keyframe_ids", "scope", "robot_ids", "maps", "min_frame_gap", "top_n", "threshold", "layers", "kind", "min_log_sequence", "exact")
     ROBOT_ID_FIELD_NUMBER: _ClassVar[int]
     SESSION_ID_FIELD_NUMBER: _ClassVar[int]
     MAP_ID_FIELD_NUMBER: _ClassVar[int]
@@ -272,6 +272,7 @@ class QueryRequest(_message.Message):
     LAYERS_FIELD_NUMBER: _ClassVar[int]
     KIND_FIELD_NUMBER: _ClassVar[int]
     MIN_LOG_SEQUENCE_FIELD_NUMBER: _ClassVar[int]
+    EXACT_FIELD_NUMBER: _ClassVar[int]
     robot_id: str
     session_id: str
     map_id: int
@@ -289,7 +290,8 @@ class QueryRequest(_message.Message):
     layers: Layers
     kind: QueryKind
     min_log_sequence: int
-    def __init__(self, robot_id: _Optional[str] = ..., session_id: _Optional[str] = ..., map_id: _Optional[int] = ..., frame_id: _Optional[int] = ..., keyframe_id: _Optional[int] = ..., features: _Optional[_Union[Features, _Mapping]] = ..., image: _Optional[_Union[Image, _Mapping]] = ..., predecessor_keyframe_ids: _Optional[_Iterable[int]] = ..., scope: _Optional[_Union[Scope, str]] = ..., robot_ids: _Optional[_Iterable[str]] = ..., maps: _Optional[_Iterable[_Union[MapRef, _Mapping]]] = ..., min_frame_gap: _Optional[int] = ..., top_n: _Optional[int] = ..., threshold: _Optional[float] = ..., layers: _Optional[_Union[Layers, str]] = ..., kind: _Optional[_Union[QueryKind, str]] = ..., min_log_sequence: _Optional[int] = ...) -> None: ...
+    exact: bool
+    def __init__(self, robot_id: _Optional[str] = ..., session_id: _Optional[str] = ..., map_id: _Optional[int] = ..., frame_id: _Optional[int] = ..., keyframe_id: _Optional[int] = ..., features: _Optional[_Union[Features, _Mapping]] = ..., image: _Optional[_Union[Image, _Mapping]] = ..., predecessor_keyframe_ids: _Optional[_Iterable[int]] = ..., scope: _Optional[_Union[Scope, str]] = ..., robot_ids: _Optional[_Iterable[str]] = ..., maps: _Optional[_Iterable[_Union[MapRef, _Mapping]]] = ..., min_frame_gap: _Optional[int] = ..., top_n: _Optional[int] = ..., threshold: _Optional[float] = ..., layers: _Optional[_Union[Layers, str]] = ..., kind: _Optional[_Union[QueryKind, str]] = ..., min_log_sequence: _Optional[int] = ..., exact: _Optional[bool] = ...) -> None: ...
 
 class ObjectMatch(_message.Message):
     __slots__ = ("query_object", "candidate_object", "class_name", "affinity", "spatial")

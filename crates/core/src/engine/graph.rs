@@ -93,7 +93,9 @@ impl NeighbourGraph {
     /// An empty graph for descriptors of length `dim` (> 0).
     pub fn new(dim: usize) -> Result<Self, GraphError> {
         let graph = Hnsw::new(&options(dim)).map_err(native)?;
-        graph.reserve_capacity_and_threads(1024, SEARCH_THREADS).map_err(native)?;
+        graph
+            .reserve_capacity_and_threads(1024, SEARCH_THREADS)
+            .map_err(native)?;
         Ok(NeighbourGraph { graph, dim })
     }
 
@@ -130,7 +132,8 @@ impl NeighbourGraph {
             // Doubling keeps the growth amortised, as a Vec's.
             let capacity = wanted.max(2 * self.graph.capacity());
             self.graph
-                .reserve_capacity_and_threads(capacity, SEARCH_THREADS).map_err(native)?;
+                .reserve_capacity_and_threads(capacity, SEARCH_THREADS)
+                .map_err(native)?;
         }
         Ok(())
     }
@@ -169,7 +172,10 @@ impl NeighbourGraph {
         if self.is_empty() || count == 0 {
             return Ok(Vec::new());
         }
-        let found = self.graph.filtered_search(&code(query), count, keep).map_err(native)?;
+        let found = self
+            .graph
+            .filtered_search(&code(query), count, keep)
+            .map_err(native)?;
         Ok(found.keys)
     }
 
@@ -288,7 +294,10 @@ mod tests {
         }
         assert!(matches!(
             NeighbourGraph::load(&path, 64),
-            Err(GraphError::Dimension { expected: 64, found: 48 })
+            Err(GraphError::Dimension {
+                expected: 64,
+                found: 48
+            })
         ));
         let mut more = loaded;
         more.add(1, &data[3]).unwrap();

@@ -49,7 +49,10 @@ impl Index {
     /// the index does not are never proposed). Nothing to do if a graph is
     /// kept already, or while the descriptor length is unknown (the first
     /// insert then starts one).
-    pub fn keep_neighbour_graph(&mut self, saved: Option<NeighbourGraph>) -> Result<(), GraphError> {
+    pub fn keep_neighbour_graph(
+        &mut self,
+        saved: Option<NeighbourGraph>,
+    ) -> Result<(), GraphError> {
         self.graph_wanted = true;
         if self.neighbours.is_some() || self.matrix.dim() == 0 {
             return Ok(());

@@ -47,6 +47,7 @@ pub mod ogtl;
 pub mod operating_point;
 pub mod osrl;
 pub mod params;
+mod query_side;
 pub mod rank;
 pub mod scal;
 pub mod scan;

@@ -59,6 +59,45 @@ pub struct LoadArgs {
     /// Linux process id of the server, to report its peak memory (VmHWM).
     #[arg(long)]
     pub server_pid: Option<u32>,
+    /// The queries each keyframe asks, one per scope, as ORB-SLAM3 asks a
+    /// loop query over its own map and a merge query over every other:
+    /// `same-map,other-maps`. Default: one query over every map.
+    #[arg(long, value_enum, value_delimiter = ',', default_values_t = [LoadScope::AllMaps])]
+    pub scopes: Vec<LoadScope>,
+    /// Every this many ticks, each robot asks its `other-maps` (or, without
+    /// one, its first) query again with `exact` set and compares the top
+    /// candidates: how often the answer equals an exact pass's (0: never).
+    #[arg(long, default_value_t = 0)]
+    pub exact_every: u64,
+}
+
+/// A query scope of `humem load --scopes`.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, clap::ValueEnum)]
+pub enum LoadScope {
+    /// The querying keyframe's own map (loop closure).
+    SameMap,
+    /// Every map but its own (map merging).
+    OtherMaps,
+    /// Every map (relocalisation).
+    AllMaps,
+}
+
+impl LoadScope {
+    fn proto(self) -> proto::Scope {
+        match self {
+            LoadScope::SameMap => proto::Scope::SameMap,
+            LoadScope::OtherMaps => proto::Scope::OtherMaps,
+            LoadScope::AllMaps => proto::Scope::AllMaps,
+        }
+    }
+
+    fn name(self) -> &'static str {
+        match self {
+            LoadScope::SameMap => "same-map",
+            LoadScope::OtherMaps => "other-maps",
+            LoadScope::AllMaps => "all-maps",
+        }
+    }
 }
 
 /// Outcomes of one kind of call.
@@ -101,7 +140,10 @@ impl Tally {
 #[derive(Clone)]
 struct Tallies {
     insert: Arc<Mutex<Tally>>,
-    query: Arc<Mutex<Tally>>,
+    /// One per scope of `--scopes`, in its order.
+    query: Arc<Vec<Mutex<Tally>>>,
+    /// Sampled queries asked again exact: (compared, same top candidate).
+    exact: Arc<Mutex<(u64, u64)>>,
 }
 
 /// How synthetic descriptors are made (`--descriptors`).
@@ -232,6 +274,8 @@ async fn robot(
         let (mut inserter, mut querier) = (client.clone(), client.clone());
         let tallies = tallies.clone();
         let robot_id = robot_id.clone();
+        let scopes = args.scopes.clone();
+        let exact_every = args.exact_every;
         // Insert, then ask about the new keyframe; the next tick does not
         // wait for either.
         calls.push(tokio::spawn(async move {
@@ -251,29 +295,54 @@ async fn robot(
             if !ok {
                 return;
             }
-            let started = Instant::now();
             let kind = if query_content.is_some() {
                 proto::QueryKind::Relocalisation
             } else {
                 proto::QueryKind::LoopClosure
             };
-            let answered = querier
-                .query(proto::QueryRequest {
-                    robot_id,
-                    session_id: "load".into(),
-                    keyframe_id: Some(tick),
-                    frame_id: Some(tick * 3),
-                    content: query_content,
-                    kind: kind as i32,
-                    ..Default::default()
-                })
-                .await
-                .map(|r| r.into_inner().status() == proto::QueryStatus::Answered);
-            tallies
-                .query
-                .lock()
-                .unwrap()
-                .record(started.elapsed(), answered);
+            let request = |scope: LoadScope, exact: bool| proto::QueryRequest {
+                robot_id: robot_id.clone(),
+                session_id: "load".into(),
+                keyframe_id: Some(tick),
+                frame_id: Some(tick * 3),
+                content: query_content.clone(),
+                kind: kind as i32,
+                scope: scope.proto() as i32,
+                // Compared answers must not depend on the operating point.
+                threshold: (exact_every > 0).then_some(0.0),
+                exact,
+                ..Default::default()
+            };
+            let checked = (exact_every > 0 && tick.is_multiple_of(exact_every)).then(|| {
+                scopes
+                    .iter()
+                    .position(|&s| s == LoadScope::OtherMaps)
+                    .unwrap_or(0)
+            });
+            for (i, &scope) in scopes.iter().enumerate() {
+                let started = Instant::now();
+                let answer = querier.query(request(scope, false)).await;
+                let took = started.elapsed();
+                let top = |r: &proto::QueryResponse| {
+                    r.candidates
+                        .first()
+                        .map(|c| (c.robot_id.clone(), c.session_id.clone(), c.keyframe_id))
+                };
+                let approximate = answer.as_ref().ok().map(|r| top(r.get_ref()));
+                tallies.query[i].lock().unwrap().record(
+                    took,
+                    answer.map(|r| r.into_inner().status() == proto::QueryStatus::Answered),
+                );
+                if checked == Some(i) {
+                    if let (Some(approximate), Ok(exact)) =
+                        (approximate, querier.query(request(scope, true)).await)
+                    {
+                        let mut same = tallies.exact.lock().unwrap();
+                        same.0 += 1;
+                        same.1 += u64::from(approximate == top(exact.get_ref()));
+                    }
+                }
+            }
         }));
         tick += 1;
     }
@@ -301,9 +370,16 @@ pub async fn run(args: LoadArgs) -> anyhow::Result<()> {
     });
     let channel = humem_server::client::channel(&args.server.server, &args.server.tls).await?;
     let client = PlaceRecognitionClient::new(channel).max_encoding_message_size(64 << 20);
+    anyhow::ensure!(!args.scopes.is_empty(), "--scopes names no scope");
     let tallies = Tallies {
         insert: Arc::new(Mutex::new(Tally::new())),
-        query: Arc::new(Mutex::new(Tally::new())),
+        query: Arc::new(
+            args.scopes
+                .iter()
+                .map(|_| Mutex::new(Tally::new()))
+                .collect(),
+        ),
+        exact: Arc::new(Mutex::new((0, 0))),
     };
     let args = Arc::new(args);
     println!(
@@ -343,7 +419,7 @@ pub async fn run(args: LoadArgs) -> anyhow::Result<()> {
     let wall = started.elapsed().as_secs_f64();
 
     println!(
-        "\n{:<8} {:>7} {:>7} {:>10} {:>7} {:>9} {:>9} {:>9} {:>9} {:>9}",
+        "\n{:<16} {:>7} {:>7} {:>10} {:>7} {:>9} {:>9} {:>9} {:>9} {:>9}",
         "call",
         "sent",
         "ok",
@@ -355,12 +431,23 @@ pub async fn run(args: LoadArgs) -> anyhow::Result<()> {
         "p99 ms",
         "max ms"
     );
-    for (name, tally) in [("insert", &tallies.insert), ("query", &tallies.query)] {
+    let query_names: Vec<String> = args
+        .scopes
+        .iter()
+        .map(|s| format!("query/{}", s.name()))
+        .collect();
+    let calls = std::iter::once(("insert", &*tallies.insert)).chain(
+        query_names
+            .iter()
+            .map(String::as_str)
+            .zip(tallies.query.iter()),
+    );
+    for (name, tally) in calls {
         let t = tally.lock().unwrap();
         let errors: u64 = t.errors.values().sum();
         let ms = |q: f64| t.latency.value_at_quantile(q) as f64 / 1000.0;
         println!(
-            "{name:<8} {:>7} {:>7} {:>10} {:>7} {:>9.1} {:>9.1} {:>9.1} {:>9.1} {:>9.1}",
+            "{name:<16} {:>7} {:>7} {:>10} {:>7} {:>9.1} {:>9.1} {:>9.1} {:>9.1} {:>9.1}",
             t.ok + t.superseded + errors,
             t.ok,
             t.superseded,
@@ -373,8 +460,15 @@ pub async fn run(args: LoadArgs) -> anyhow::Result<()> {
         );
         for (code, n) in &t.errors {
             let message = t.first_message.get(code).map_or("", String::as_str);
-            println!("{:<8} error {code}: {n} (first: {message:?})", "");
+            println!("{:<16} error {code}: {n} (first: {message:?})", "");
         }
+    }
+    let (compared, same) = *tallies.exact.lock().unwrap();
+    if compared > 0 {
+        println!(
+            "\nexact check: {same} of {compared} sampled queries ({:.1} %) have the exact pass's top candidate",
+            100.0 * same as f64 / compared as f64
+        );
     }
     if let Some(pid) = args.server_pid {
         match peak_memory_kib(pid) {
