@@ -242,6 +242,6 @@ impl ExactTable {
 /// vectorises: the same value for every input, NaN and −0 to +0 included
 /// (`max` returns its other operand for NaN; adding +0 turns −0 into +0).
 #[inline(always)]
-fn clip01_branchless(x: f32) -> f32 {
+pub(super) fn clip01_branchless(x: f32) -> f32 {
     (x.max(0.0) + 0.0).min(1.0)
 }

@@ -608,6 +608,7 @@ mod tests {
     use crate::keyframe::SceneClass;
     use crate::vpr::memory::VecMemory;
     use crate::vpr::params::TemporalMode;
+    use crate::vpr::query_side::clip01_branchless;
     use crate::vpr::testing::{memory_strategy, scene_strategy, unit_vector};
     use proptest::prelude::*;
 
