@@ -328,14 +328,25 @@ async fn robot(
                         .first()
                         .map(|c| (c.robot_id.clone(), c.session_id.clone(), c.keyframe_id))
                 };
-                let approximate = answer.as_ref().ok().map(|r| top(r.get_ref()));
+                let answered =
+                    |r: &proto::QueryResponse| r.status() == proto::QueryStatus::Answered;
+                // Only answered queries are compared (not one superseded).
+                let approximate = answer
+                    .as_ref()
+                    .ok()
+                    .filter(|r| answered(r.get_ref()))
+                    .map(|r| top(r.get_ref()));
                 tallies.query[i].lock().unwrap().record(
                     took,
                     answer.map(|r| r.into_inner().status() == proto::QueryStatus::Answered),
                 );
                 if checked == Some(i) {
-                    if let (Some(approximate), Ok(exact)) =
-                        (approximate, querier.query(request(scope, true)).await)
+                    let exact = match approximate {
+                        Some(_) => querier.query(request(scope, true)).await.ok(),
+                        None => None,
+                    };
+                    if let (Some(approximate), Some(exact)) =
+                        (approximate, exact.filter(|r| answered(r.get_ref())))
                     {
                         let mut same = tallies.exact.lock().unwrap();
                         same.0 += 1;
