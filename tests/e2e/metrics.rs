@@ -214,5 +214,5 @@ async fn the_load_generator_asks_loop_and_merge_queries_and_checks_the_graph_aga
         .collect();
     let (same, compared) = (numbers[0], numbers[1]);
     assert!(compared >= 20.0, "{text}");
-    assert!(same >= 0.9 * compared, "{text}");
+    assert!(same >= 0.85 * compared, "{text}");
 }
