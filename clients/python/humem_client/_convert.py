@@ -111,6 +111,7 @@ def query_to_proto(q: Query, robot_id: str, session_id: str) -> pb.QueryRequest:
         maps=[pb.MapRef(robot_id=m.robot_id, session_id=m.session_id, map_id=m.map_id) for m in q.maps],
         layers=int(q.layers),
         kind=int(q.kind),
+        exact=q.exact,
     )
     for name in ("map_id", "frame_id", "keyframe_id", "min_frame_gap", "top_n", "threshold", "min_log_sequence"):
         value = getattr(q, name)

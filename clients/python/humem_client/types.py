@@ -418,6 +418,9 @@ class Query:
     layers: Layers = Layers.UNSPECIFIED
     kind: QueryKind = QueryKind.LOOP_CLOSURE
     min_log_sequence: Optional[int] = None
+    exact: bool = False
+    """Answer from a pass over every eligible keyframe, never from the
+    server's neighbour graph (slower on a large store)."""
     robot_id: Optional[str] = None
     session_id: Optional[str] = None
 

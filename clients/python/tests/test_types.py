@@ -83,8 +83,9 @@ class MirrorTest(unittest.TestCase):
             objects=[hc.ObjectObservation("sign", 0.9, 0.5, 0.4, 0.02, texts=[("B-214", 0.8)])],
             appearance=np.arange(3072) % 100), predecessor_keyframe_ids=[2, 1], scope=hc.Scope.LISTED,
             robot_ids=["car-2"], maps=[hc.MapRef("car-3", 4)], min_frame_gap=0, top_n=3, threshold=0.5,
-            layers=hc.Layers.SCAL_OSRL, kind=hc.QueryKind.RELOCALISATION, min_log_sequence=0)
+            layers=hc.Layers.SCAL_OSRL, kind=hc.QueryKind.RELOCALISATION, min_log_sequence=0, exact=True)
         m = _convert.query_to_proto(q, "me", "s")
+        self.assertTrue(m.exact)
         self.assertEqual((m.robot_id, m.session_id, m.frame_id, m.keyframe_id, m.map_id), ("me", "s", 7, 3, 2))
         for name in ("min_frame_gap", "min_log_sequence", "top_n", "threshold"):
             self.assertTrue(m.HasField(name), name)  # 0 is sent, not left to the default

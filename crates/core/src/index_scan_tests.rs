@@ -333,3 +333,55 @@ fn the_graphs_candidates_find_the_exact_best_match_of_a_revisited_place() {
     }
     assert!(same >= queries * 97 / 100, "{same} of {queries}");
 }
+
+#[test]
+fn a_deferred_batch_enters_the_graph_with_its_erasures_and_replacements() {
+    use crate::synthetic::{place_descriptor, Rng};
+    let dim = 32;
+    let mut noise = Rng::new(5);
+    let mut index = Index::new(dim);
+    index.keep_neighbour_graph(None).unwrap();
+    let stored = |id: u64, noise: &mut Rng| {
+        let features = Features {
+            descriptor: place_descriptor(dim, id, noise),
+            ..Features::default()
+        };
+        keyframe((id % 3) as usize, 0, 0, id, features)
+    };
+    for id in 0..50 {
+        index.upsert(stored(id, &mut noise));
+    }
+    index.defer_graph_inserts();
+    for id in 50..300 {
+        index.upsert(stored(id, &mut noise));
+    }
+    // Erased while waiting, replaced while waiting, erased after entering.
+    let key = |id: u64| KeyframeKey {
+        robot_id: ROBOTS[(id % 3) as usize].into(),
+        session_id: SESSIONS[0].into(),
+        keyframe_id: id,
+    };
+    for id in [60, 70, 10] {
+        index.remove(&key(id));
+    }
+    let replacement = stored(80, &mut noise);
+    let replaced_descriptor = replacement.features.descriptor.clone();
+    index.upsert(replacement);
+    assert!(
+        index
+            .nearest_rows(&replaced_descriptor, 1, &|_| true)
+            .unwrap()[0]
+            != index.row_of(&key(80)).unwrap()
+    );
+    index.flush_graph_inserts();
+    assert_eq!(index.neighbour_graph().unwrap().len(), 297);
+    assert_eq!(index.neighbour_graph_missing(), 0);
+    for row in 0..index.len() {
+        let descriptor = index.descriptor(row).to_vec();
+        assert_eq!(
+            index.nearest_rows(&descriptor, 1, &|_| true).unwrap(),
+            vec![row],
+            "row {row}"
+        );
+    }
+}

@@ -132,6 +132,10 @@ pub(super) struct Neighbours {
     /// Keyframes left out of the graph: their key's hash was another's,
     /// or the graph refused them. Only an exact pass finds them.
     pub(super) missing: usize,
+    /// Keys of keyframes stored since [`Index::defer_graph_inserts`],
+    /// added to the graph together by [`Index::flush_graph_inserts`];
+    /// None: each is added as it is stored.
+    pub(super) pending: Option<Vec<u64>>,
 }
 
 /// An operating point and what it was estimated with.

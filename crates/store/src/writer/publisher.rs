@@ -122,6 +122,9 @@ impl Publisher {
         } = group;
         let (store_keyframes, store_verdicts) = {
             let mut index = self.index.write();
+            // The group's keyframes enter the neighbour graph together,
+            // on every core.
+            index.defer_graph_inserts();
             for change in changes {
                 match change {
                     IndexChange::Upsert(kf) => {
@@ -138,6 +141,7 @@ impl Publisher {
                     }
                 }
             }
+            index.flush_graph_inserts();
             self.placement.apply(&mut index);
             self.applied.store(sequence, Ordering::Release);
             (index.len() as u64, index.verdicts().len() as u64)
