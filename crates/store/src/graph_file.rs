@@ -46,7 +46,12 @@ pub(crate) fn save(dir: &Path, index: &RwLock<Index>) -> Option<UnpublishedGraph
     let started = Instant::now();
     let saved = {
         let index = index.read();
-        let graph = index.neighbour_graph()?;
+        let Some(graph) = index.neighbour_graph() else {
+            // A graph left from when one was kept would be older than
+            // this snapshot: the next open that wants one builds it.
+            let _ = std::fs::remove_file(path(dir));
+            return None;
+        };
         graph.save(&temp).map(|()| graph.len())
     };
     match saved {

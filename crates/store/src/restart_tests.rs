@@ -606,3 +606,23 @@ async fn a_store_without_a_saved_graph_builds_one_at_open() {
     let store = open_with_graph(dir.path());
     assert_eq!(store.index().neighbour_graph().unwrap().len(), 25);
 }
+
+#[tokio::test]
+async fn a_snapshot_without_a_graph_removes_the_one_an_earlier_open_saved() {
+    let dir = tempfile::tempdir().unwrap();
+    {
+        let store = open_with_graph(dir.path());
+        insert(&store, (0..10).map(|i| kf("a", "s", i, 0)).collect()).await;
+        store.snapshot().unwrap();
+    }
+    assert!(graph_file::path(dir.path()).exists());
+    {
+        let store = open_manual(dir.path());
+        insert(&store, vec![kf("a", "s", 20, 0)]).await;
+        store.snapshot().unwrap();
+    }
+    // It would lack the keyframe stored meanwhile.
+    assert!(!graph_file::path(dir.path()).exists());
+    let store = open_with_graph(dir.path());
+    assert_eq!(store.index().neighbour_graph().unwrap().len(), 11);
+}
