@@ -140,15 +140,7 @@ async fn the_load_generator_reports_what_it_achieved() {
             "2",
         ]),
     );
-    let row = |call: &str| -> Vec<f64> {
-        text.lines()
-            .find(|l| l.starts_with(call))
-            .unwrap_or_else(|| panic!("no {call} row in\n{text}"))
-            .split_whitespace()
-            .skip(1)
-            .map(|v| v.parse().unwrap())
-            .collect()
-    };
+    let row = |call: &str| load_row(&text, call);
     // sent, ok, superseded, errors, ok/s, p50, p95, p99, max
     let insert = row("insert");
     assert!(insert[0] >= 100.0, "{text}");
@@ -185,15 +177,7 @@ async fn the_load_generator_asks_loop_and_merge_queries_and_checks_the_graph_aga
             "3",
         ]),
     );
-    let row = |call: &str| -> Vec<f64> {
-        text.lines()
-            .find(|l| l.starts_with(call))
-            .unwrap_or_else(|| panic!("no {call} row in\n{text}"))
-            .split_whitespace()
-            .skip(1)
-            .map(|v| v.parse().unwrap())
-            .collect()
-    };
+    let row = |call: &str| load_row(&text, call);
     let insert = row("insert");
     for scope in ["query/same-map", "query/other-maps"] {
         let query = row(scope);
@@ -215,4 +199,16 @@ async fn the_load_generator_asks_loop_and_merge_queries_and_checks_the_graph_aga
     let (same, compared) = (numbers[0], numbers[1]);
     assert!(compared >= 20.0, "{text}");
     assert!(same >= 0.85 * compared, "{text}");
+}
+
+/// The figures of `humem load`'s row for `call` (sent, ok, superseded,
+/// errors, ok/s, p50, p95, p99, max).
+fn load_row(text: &str, call: &str) -> Vec<f64> {
+    text.lines()
+        .find(|l| l.starts_with(call))
+        .unwrap_or_else(|| panic!("no {call} row in\n{text}"))
+        .split_whitespace()
+        .skip(1)
+        .map(|v| v.parse().unwrap())
+        .collect()
 }

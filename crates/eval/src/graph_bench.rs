@@ -32,7 +32,7 @@ use humem_core::vpr::scal::ScalQuery;
 use humem_core::vpr::scan::scal_scan;
 use humem_server::config::Config;
 
-use crate::scan_bench::SyntheticFleet;
+use crate::scan_bench::{flat_scan, SyntheticFleet};
 
 /// Options of `humem bench graph`.
 #[derive(Debug, Clone, clap::Args)]
@@ -124,7 +124,7 @@ fn measure(
     let build = started.elapsed();
     let graph_bytes = index.neighbour_graph().map_or(0, |g| g.memory_bytes());
 
-    let queries = queries(&fleet_places(rows), args.dim, args.queries);
+    let queries = queries(fleet.places(), args.dim, args.queries);
     let context = QueryContext {
         session: SessionKey {
             robot_id: "visitor".into(),
@@ -216,13 +216,8 @@ fn measure(
     })
 }
 
-/// Places of the store [`SyntheticFleet`] makes of `rows` keyframes.
-fn fleet_places(rows: usize) -> u64 {
-    (rows / 20).max(1) as u64
-}
-
 /// `n` new visits to stored places: each a place's centre plus new noise.
-fn queries(places: &u64, dim: usize, n: usize) -> Vec<Features> {
+fn queries(places: u64, dim: usize, n: usize) -> Vec<Features> {
     let mut noise = Rng::new(0xbe9c);
     let mut pick = Rng::new(77);
     (0..n)
@@ -234,19 +229,11 @@ fn queries(places: &u64, dim: usize, n: usize) -> Vec<Features> {
 }
 
 /// The `k` rows with the highest inner product with `query`, best first
-/// (ties: lower row).
+/// (ties: lower row): the flat scan's, in order.
 fn dot_top(index: &Index, query: &[f32], k: usize) -> Vec<usize> {
-    let mut all: Vec<(f32, usize)> = (0..index.len())
-        .map(|r| (dot_f32_wide(query, &index.descriptor(r)), r))
-        .collect();
-    let k = k.min(all.len());
-    if k == 0 {
-        return Vec::new();
-    }
-    all.select_nth_unstable_by(k - 1, |a, b| b.0.total_cmp(&a.0).then(a.1.cmp(&b.1)));
-    all.truncate(k);
-    all.sort_by(|a, b| b.0.total_cmp(&a.0).then(a.1.cmp(&b.1)));
-    all.into_iter().map(|(_, r)| r).collect()
+    let mut top = flat_scan(index, query, k);
+    top.sort_by(|a, b| b.0.total_cmp(&a.0).then(a.1.cmp(&b.1)));
+    top.into_iter().map(|(_, row)| row).collect()
 }
 
 /// `base.f32` (rows × dim), `queries.f32` (queries × dim) and

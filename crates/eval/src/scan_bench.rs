@@ -105,6 +105,11 @@ impl SyntheticFleet {
         }
     }
 
+    /// Distinct places the fleet's keyframes see.
+    pub fn places(&self) -> u64 {
+        self.places
+    }
+
     /// Keyframe `i`: robot `i % robots`, its `i / robots`-th keyframe.
     pub fn keyframe(&mut self, i: usize) -> SemanticKeyframe {
         let robot = i % self.robots;
@@ -139,7 +144,7 @@ impl SyntheticFleet {
 
 /// The baseline: one query's exact inner products with every row and the
 /// top `k`, the way a flat inner-product index answers.
-fn flat_scan(index: &Index, query: &[f32], k: usize) -> Vec<(f32, usize)> {
+pub(crate) fn flat_scan(index: &Index, query: &[f32], k: usize) -> Vec<(f32, usize)> {
     let matrix = index.descriptors();
     // Min-heap on score of the best k so far (scores are negated).
     let mut best: BinaryHeap<(std::cmp::Reverse<OrderedScore>, usize)> = BinaryHeap::new();

@@ -299,6 +299,18 @@ pub struct QueryCode {
     rounding: f32,
 }
 
+/// `values` scaled by their largest magnitude to integers in
+/// `[−127, 127]`, as a row's codes are (without the offset): all zeros for
+/// a zero or non-finite row.
+pub fn i8_codes(values: &[f32]) -> Vec<i8> {
+    let mut codes = vec![0i8; values.len()];
+    let code = quantize(values, 127, |i, c| codes[i] = c);
+    if !code.residual.is_finite() {
+        codes.fill(0);
+    }
+    codes
+}
+
 impl QueryCode {
     /// Codes of `query` for a matrix of `codes`' row length, in the range
     /// `kernel` multiplies without overflow

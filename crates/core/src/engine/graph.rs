@@ -27,6 +27,8 @@ use std::path::Path;
 
 use usearch::{Index as Hnsw, IndexOptions, MetricKind, ScalarKind};
 
+use super::codes::i8_codes as code;
+
 /// Links per node (HNSW's `M`): 16 is the usual default; fewer links make
 /// inserts cheaper and recall lower (`humem bench scan`).
 pub const CONNECTIVITY: usize = 16;
@@ -207,22 +209,6 @@ fn path_str(path: &Path) -> Result<String, GraphError> {
     path.to_str()
         .map(str::to_string)
         .ok_or_else(|| GraphError::Native(format!("{}: not UTF-8", path.display())))
-}
-
-/// `row` scaled by its largest magnitude to integers in `[−127, 127]`
-/// (all zeros for a zero or non-finite row, which then matches nothing).
-fn code(row: &[f32]) -> Vec<i8> {
-    let max = row.iter().fold(0.0f32, |m, v| m.max(v.abs()));
-    if !(max > 0.0 && row.iter().all(|v| v.is_finite())) {
-        return vec![0; row.len()];
-    }
-    let scale = 127.0 / max;
-    row.iter()
-        .map(|&v| {
-            let x = v * scale;
-            (x + 0.5f32.copysign(x)).clamp(-127.0, 127.0) as i8
-        })
-        .collect()
 }
 
 #[cfg(test)]

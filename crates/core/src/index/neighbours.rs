@@ -129,13 +129,11 @@ impl Index {
     /// one if it was asked for before the descriptor length was known).
     pub(super) fn graph_insert(&mut self, row: usize) {
         if self.neighbours.is_none() {
-            if !self.graph_wanted {
-                return;
+            if self.graph_wanted {
+                // Built from every row, this one included; a graph that
+                // cannot start leaves every query to the exact pass.
+                let _ = self.keep_neighbour_graph(None);
             }
-            if self.keep_neighbour_graph(None).is_err() {
-                return;
-            }
-            // Built from every row, this one included.
             return;
         }
         let key = graph_key(&self.rows[row].key);

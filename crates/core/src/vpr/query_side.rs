@@ -51,6 +51,20 @@ impl<'a> QuerySide<'a> {
         }
     }
 
+    /// The one-byte codes of the query's descriptors, for `memory`'s code
+    /// matrix and `kernel`.
+    pub(super) fn codes<M: KeyframeMemory + ?Sized>(
+        &self,
+        memory: &M,
+        kernel: CodeKernel,
+    ) -> Vec<QueryCode> {
+        let matrix = memory.descriptors().codes();
+        self.descriptors
+            .iter()
+            .map(|q| QueryCode::new(q, matrix, kernel))
+            .collect()
+    }
+
     pub(super) fn steps(&self) -> usize {
         self.descriptors.len()
     }

@@ -179,11 +179,7 @@ where
     top_k(&mut hits, params.top_k);
     let matrix = memory.descriptors();
     let kernel = CodeKernel::detect();
-    let codes: Vec<QueryCode> = side
-        .descriptors
-        .iter()
-        .map(|q| QueryCode::new(q, matrix.codes(), kernel))
-        .collect();
+    let codes = side.codes(memory, kernel);
     let sampler = Sampler::new(NullModel::stride(admitted));
     let sample: Vec<usize> = (0..matrix.len())
         .into_par_iter()
@@ -308,13 +304,8 @@ where
     M: KeyframeMemory + ?Sized,
     E: RowFilter + ?Sized,
 {
-    let matrix = memory.descriptors();
     let kernel = CodeKernel::detect();
-    let codes: Vec<QueryCode> = side
-        .descriptors
-        .iter()
-        .map(|q| QueryCode::new(q, matrix.codes(), kernel))
-        .collect();
+    let codes = side.codes(memory, kernel);
     let bounds = CodeBounds {
         side,
         codes: &codes,
