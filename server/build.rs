@@ -5,7 +5,10 @@
 use std::path::PathBuf;
 
 fn main() -> Result<(), Box<dyn std::error::Error>> {
-    let proto_root = PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../proto");
+    // Read at run time, not baked in when the script was compiled: a
+    // build script compiled for one checkout may be run for another that
+    // shares the target directory.
+    let proto_root = PathBuf::from(std::env::var("CARGO_MANIFEST_DIR")?).join("../proto");
     let proto_file = proto_root.join("humem/v1/humem.proto");
     println!("cargo:rerun-if-changed={}", proto_file.display());
 

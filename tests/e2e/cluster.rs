@@ -741,10 +741,13 @@ async fn a_new_replica_starts_from_the_snapshot_once_the_log_has_moved_past_it()
     }
     let nats = NatsCluster::start(1);
     let dirs: Vec<_> = (0..2).map(|_| tempfile::tempdir().unwrap()).collect();
+    // Every query goes through the neighbour graph, which the snapshot
+    // carries to the new replica.
     let settings = |every: u64| {
         [
             "HUMEM_CLUSTER__STREAM_REPLICAS=1".to_string(),
             format!("HUMEM_CLUSTER__SNAPSHOT_EVERY={every}"),
+            "HUMEM_VPR__APPROXIMATE_FROM=1".to_string(),
         ]
     };
     let first = replica_with(&nats, dirs[0].path(), "first", &settings(10));
@@ -782,19 +785,29 @@ async fn a_new_replica_starts_from_the_snapshot_once_the_log_has_moved_past_it()
     }
 
     // A replica on an empty directory starts from the snapshot and replays
-    // the rest, and answers as the first does.
+    // the rest, and answers as the first does. Its neighbour graph came
+    // with the snapshot (read, not built) and holds every keyframe.
     let second = replica_with(&nats, dirs[1].path(), "second", &settings(0));
     wait_for_position(&second, last, Duration::from_secs(20)).await;
     let (a, b) = (first.stats().await, second.stats().await);
     assert_eq!((b.keyframes, b.log_position), (drive.len() as u64, last));
     assert_eq!(a.maps, b.maps);
-    let newest = scenes::id(&drive.last().unwrap().0);
-    let (a, b) = (
-        ask(&first, "r", newest, last).await.unwrap(),
-        ask(&second, "r", newest, last).await.unwrap(),
+    let graph = b.neighbour_graph.expect("the new replica keeps a graph");
+    assert!(
+        graph.loaded,
+        "the graph was built, not read from the snapshot"
     );
-    assert!(!a.candidates.is_empty());
-    assert_eq!(answer(&a), answer(&b));
+    assert_eq!((graph.keyframes, graph.missing), (drive.len() as u64, 0));
+    assert_eq!(graph.approximate_from, 1);
+    for (kf, _) in drive.iter().step_by(3) {
+        let id = scenes::id(kf);
+        let (a, b) = (
+            ask(&first, "r", id, last).await.unwrap(),
+            ask(&second, "r", id, last).await.unwrap(),
+        );
+        assert!(!a.candidates.is_empty());
+        assert_eq!(answer(&a), answer(&b), "keyframe {id}");
+    }
 
     // A store written outside cluster mode is never replaced by the
     // snapshot: the replica refuses to start, and the store keeps its own.

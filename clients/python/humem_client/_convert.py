@@ -18,6 +18,7 @@ from .types import (
     InsertResult,
     Keyframe,
     MapStats,
+    NeighbourGraphStats,
     MissingObject,
     ObjectMatch,
     ObjectObservation,
@@ -226,4 +227,11 @@ def stats_from_proto(r: pb.StatsResponse) -> Stats:
             estimated_precision=_optional(p, "estimated_precision"),
             configured_precision=_optional(p, "configured_precision"),
         )
-    return _plain(Stats, r, maps=tuple(_plain(MapStats, m) for m in r.maps), operating_point=op)
+    graph = _plain(NeighbourGraphStats, r.neighbour_graph) if r.HasField("neighbour_graph") else None
+    return _plain(
+        Stats,
+        r,
+        maps=tuple(_plain(MapStats, m) for m in r.maps),
+        operating_point=op,
+        neighbour_graph=graph,
+    )

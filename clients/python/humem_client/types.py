@@ -607,6 +607,17 @@ class OperatingPoint:
 
 
 @dataclass(frozen=True)
+class NeighbourGraphStats:
+    """The neighbour graph that proposes the candidates of large queries."""
+
+    keyframes: int
+    missing: int
+    memory_bytes: int
+    loaded: bool
+    approximate_from: int
+
+
+@dataclass(frozen=True)
 class Stats:
     keyframes: int
     descriptor_dim: int
@@ -617,3 +628,4 @@ class Stats:
     log_position: int
     verdicts: int
     operating_point: Optional[OperatingPoint]
+    neighbour_graph: Optional[NeighbourGraphStats] = None

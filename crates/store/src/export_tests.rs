@@ -4,6 +4,7 @@
 
 use super::tests::{kf, open_when_free, session};
 use super::*;
+use crate::graph_file::GraphSource;
 use humem_core::verdict::{Verdict, VerificationKind};
 
 fn held(store: &Store) -> (Vec<SemanticKeyframe>, usize, usize) {
@@ -113,4 +114,139 @@ async fn an_export_that_would_eat_the_disk_reserve_is_refused() {
     let refused = store.export(&file).await.unwrap_err();
     assert!(matches!(refused, StoreError::DiskFull { .. }), "{refused}");
     assert!(!file.exists());
+}
+
+/// Opens `dir` keeping a neighbour graph, or not, once no other handle
+/// holds it.
+fn open_graph(dir: &std::path::Path, neighbour_graph: bool) -> Store {
+    let deadline = std::time::Instant::now() + std::time::Duration::from_secs(5);
+    loop {
+        let options = StoreOptions {
+            snapshot_every: 0,
+            queue_capacity: 16,
+            neighbour_graph,
+            ..StoreOptions::default()
+        };
+        match Store::open_with(dir, options, humem_core::observe::unobserved()) {
+            Err(StoreError::Open { .. }) if std::time::Instant::now() < deadline => {
+                std::thread::sleep(std::time::Duration::from_millis(20))
+            }
+            opened => return opened.unwrap(),
+        }
+    }
+}
+
+/// Restores `file` into a new directory, once no handle holds it.
+fn restored_from(file: &std::path::Path) -> tempfile::TempDir {
+    let target = tempfile::tempdir().unwrap();
+    export::restore(target.path(), file).unwrap();
+    target
+}
+
+#[tokio::test]
+async fn an_export_carries_the_neighbour_graph_to_the_restored_store() {
+    let dir = tempfile::tempdir().unwrap();
+    let store = open_graph(dir.path(), true);
+    let with = |id: u64, descriptor: [f32; 3]| {
+        let mut k = kf("r", "s", id, 0);
+        k.features.descriptor = descriptor.to_vec();
+        k
+    };
+    store
+        .apply(Mutation::Insert(
+            (0..40)
+                .map(|i| with(i, [1.0, i as f32 * 0.05, 0.0]))
+                .collect(),
+        ))
+        .await
+        .unwrap();
+    // Replaced and erased after the inserts: the export's graph must
+    // hold the replacement and not the erased row.
+    store
+        .apply(Mutation::Insert(vec![with(9, [0.0, 0.0, 1.0])]))
+        .await
+        .unwrap();
+    store
+        .apply(Mutation::Erase {
+            session: session("r", "s"),
+            keyframe_ids: vec![3],
+        })
+        .await
+        .unwrap();
+    let file = dir.path().join("export.bin");
+    store.export(&file).await.unwrap();
+    assert!(
+        !dir.path().join("export.bin.graph").exists(),
+        "the graph's own file is removed once exported"
+    );
+
+    let target = restored_from(&file);
+    assert!(graph_file::restored_path(target.path()).exists());
+    let restored = open_graph(target.path(), true);
+    assert_eq!(restored.opened().graph, Some(GraphSource::Loaded));
+    assert!(!graph_file::restored_path(target.path()).exists());
+    let index = restored.index();
+    assert_eq!(index.len(), 39);
+    assert_eq!(index.neighbour_graph().unwrap().len(), 39);
+    assert_eq!(index.neighbour_graph_missing(), 0);
+    let nearest = index.nearest_rows(&[0.0, 0.0, 1.0], 1, &|_| true).unwrap();
+    assert_eq!(index.meta(nearest[0]).key, session("r", "s").keyframe(9));
+    let all = index.nearest_rows(&[1.0, 0.5, 0.0], 50, &|_| true).unwrap();
+    assert_eq!(all.len(), 39);
+    drop(index);
+    drop(restored);
+
+    // Opened again, the restored graph is not taken twice: the store's
+    // own snapshot (or a build) provides it from then on.
+    let again = open_graph(target.path(), true);
+    assert!(again.opened().graph.is_some());
+    assert_eq!(again.index().neighbour_graph().unwrap().len(), 39);
+    drop(again);
+
+    // A store restored without a graph wanted drops the carried one.
+    let other = restored_from(&file);
+    let plain = open_graph(other.path(), false);
+    assert!(plain.index().neighbour_graph().is_none());
+    assert_eq!(plain.opened().graph, None);
+    assert!(!graph_file::restored_path(other.path()).exists());
+    assert!(!graph_file::path(other.path()).exists());
+}
+
+#[tokio::test]
+async fn an_export_without_a_graph_restores_into_a_store_that_builds_one() {
+    let dir = tempfile::tempdir().unwrap();
+    let store = open_graph(dir.path(), false);
+    store
+        .apply(Mutation::Insert(
+            (0..12).map(|i| kf("r", "s", i, 0)).collect(),
+        ))
+        .await
+        .unwrap();
+    let file = dir.path().join("export.bin");
+    store.export(&file).await.unwrap();
+    let target = restored_from(&file);
+    assert!(!graph_file::restored_path(target.path()).exists());
+    let restored = open_graph(target.path(), true);
+    assert_eq!(restored.opened().graph, Some(GraphSource::Built));
+    assert_eq!(restored.index().neighbour_graph().unwrap().len(), 12);
+}
+
+#[tokio::test]
+async fn a_graph_section_cut_short_is_refused() {
+    let dir = tempfile::tempdir().unwrap();
+    let store = open_graph(dir.path(), true);
+    store
+        .apply(Mutation::Insert(
+            (0..12).map(|i| kf("r", "s", i, 0)).collect(),
+        ))
+        .await
+        .unwrap();
+    let file = dir.path().join("export.bin");
+    store.export(&file).await.unwrap();
+    let bytes = std::fs::read(&file).unwrap();
+    let cut = dir.path().join("cut.bin");
+    std::fs::write(&cut, &bytes[..bytes.len() - 10]).unwrap();
+    let elsewhere = tempfile::tempdir().unwrap();
+    let refused = export::restore(elsewhere.path(), &cut).unwrap_err();
+    assert!(refused.to_string().contains("cut short"), "{refused}");
 }

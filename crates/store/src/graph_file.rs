@@ -10,11 +10,15 @@
 //! keys it holds that the index does not are never proposed. A graph that
 //! is missing, of another descriptor length or unreadable is rebuilt from
 //! the rows, with a warning.
+//!
+//! A store restored from an export ([`crate::export`]) gets the graph the
+//! export carried as [`restored_path`]: in step with the restored records,
+//! it is taken by the first open, which otherwise would build one.
 
 use std::path::{Path, PathBuf};
 use std::time::Instant;
 
-use humem_core::engine::graph::NeighbourGraph;
+use humem_core::engine::graph::{GraphError, NeighbourGraph};
 use humem_core::index::Index;
 use parking_lot::RwLock;
 
@@ -24,6 +28,21 @@ pub const FILE_NAME: &str = "index.graph";
 /// Path of the neighbour graph in data directory `dir`.
 pub fn path(dir: &Path) -> PathBuf {
     dir.join(FILE_NAME)
+}
+
+/// Where a restore leaves the graph an export carried, for the first open.
+pub(crate) fn restored_path(dir: &Path) -> PathBuf {
+    dir.join(format!("{FILE_NAME}.restored"))
+}
+
+/// How the index came to keep its neighbour graph at open.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum GraphSource {
+    /// Read from the file saved with the snapshot, or carried by the
+    /// export the store was restored from.
+    Loaded,
+    /// Built from the rows (no usable file).
+    Built,
 }
 
 fn temp_path(dir: &Path) -> PathBuf {
@@ -85,8 +104,9 @@ impl UnpublishedGraph {
 }
 
 /// Starts `index` keeping a neighbour graph: the one saved in `dir` where
-/// it can be read, else one built from the rows (on every core).
-pub(crate) fn attach(dir: &Path, index: &mut Index) {
+/// it can be read, else one built from the rows (on every core). None
+/// where no graph could be kept.
+pub(crate) fn attach(dir: &Path, index: &mut Index) -> Option<GraphSource> {
     let started = Instant::now();
     let file = path(dir);
     let saved = if file.exists() && index.dim() > 0 {
@@ -103,7 +123,7 @@ pub(crate) fn attach(dir: &Path, index: &mut Index) {
     let loaded = saved.is_some();
     if let Err(e) = index.keep_neighbour_graph(saved) {
         tracing::warn!(error = %e, "no neighbour graph: every query scans its eligible keyframes");
-        return;
+        return None;
     }
     tracing::info!(
         keyframes = index.len(),
@@ -111,4 +131,36 @@ pub(crate) fn attach(dir: &Path, index: &mut Index) {
         seconds = started.elapsed().as_secs_f64(),
         "neighbour graph ready"
     );
+    Some(if loaded {
+        GraphSource::Loaded
+    } else {
+        GraphSource::Built
+    })
+}
+
+/// [`attach`] for an index just rebuilt from every record: a saved graph
+/// may be older than the records and is dropped, unless a restore left
+/// one in step with them ([`restored_path`]).
+pub(crate) fn attach_rebuilt(dir: &Path, index: &mut Index) -> Option<GraphSource> {
+    let restored = restored_path(dir);
+    let taken = restored.exists() && std::fs::rename(&restored, path(dir)).is_ok();
+    if !taken {
+        let _ = std::fs::remove_file(path(dir));
+    }
+    attach(dir, index)
+}
+
+/// Drops a graph a restore left, where the store keeps none.
+pub(crate) fn discard_restored(dir: &Path) {
+    let _ = std::fs::remove_file(restored_path(dir));
+}
+
+/// Writes the index's neighbour graph, if it keeps one, to `file` under
+/// its read lock, for an export. Whether one was written.
+pub(crate) fn save_for_export(file: &Path, index: &RwLock<Index>) -> Result<bool, GraphError> {
+    let index = index.read();
+    match index.neighbour_graph() {
+        Some(graph) => graph.save(file).map(|()| true),
+        None => Ok(false),
+    }
 }

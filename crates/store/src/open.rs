@@ -19,6 +19,7 @@ use parking_lot::RwLock;
 
 use crate::checkpoint::Checkpoints;
 use crate::error::StoreError;
+use crate::graph_file::GraphSource;
 use crate::layout::{
     KEYFRAMES_TREE, META_DIM, META_FORMAT, META_TREE, STORE_FORMAT, VERDICTS_BY_CANDIDATE_TREE,
     VERDICTS_TREE,
@@ -48,6 +49,8 @@ pub enum IndexSource {
 pub struct OpenReport {
     /// Where the index came from.
     pub source: IndexSource,
+    /// Where its neighbour graph came from; None where it keeps none.
+    pub graph: Option<GraphSource>,
     /// Keyframes in the index.
     pub keyframes: usize,
     /// Time from the call to a ready index.
@@ -101,7 +104,12 @@ pub(crate) fn open(
         dir.to_path_buf(),
         descriptors_to_file,
     ));
-    let (index, source, snapshot_sequence) = load_index(
+    let LoadedIndex {
+        index,
+        source,
+        snapshot_sequence,
+        graph,
+    } = load_index(
         &placement,
         &keyframes,
         &journal_tree,
@@ -121,6 +129,7 @@ pub(crate) fn open(
     load_verdicts(&verdicts, &mut index)?;
     let opened = OpenReport {
         source,
+        graph,
         keyframes: index.len(),
         elapsed: started.elapsed(),
     };
@@ -129,6 +138,7 @@ pub(crate) fn open(
         keyframes = opened.keyframes,
         descriptor_dim = index.dim(),
         from = ?opened.source,
+        graph = ?opened.graph,
         seconds = opened.elapsed.as_secs_f64(),
         "store opened"
     );
@@ -207,10 +217,28 @@ fn pinned_dim(meta: &sled::Tree, asked: usize) -> Result<usize, StoreError> {
     Ok(dim)
 }
 
+/// The index as loaded at open.
+struct LoadedIndex {
+    index: Index,
+    source: IndexSource,
+    /// The sequence of the snapshot it was loaded from (none: rebuilt
+    /// from the tree).
+    snapshot_sequence: Option<u64>,
+    graph: Option<GraphSource>,
+}
+
+/// An index loaded from the snapshot and brought up to date.
+struct SnapshotLoad {
+    index: Index,
+    /// Distinct keys replayed from the journal.
+    replayed: usize,
+    /// The snapshot's sequence.
+    sequence: u64,
+    graph: Option<GraphSource>,
+}
+
 /// Loads the index: from the snapshot brought up to date by the journal
-/// when that is possible, else from every record in the tree. Returns the
-/// index, where it came from, and the sequence of the snapshot it was
-/// loaded from (none: rebuilt from the tree). The store's directory is
+/// when that is possible, else from every record in the tree. The store's directory is
 /// `placement`'s, and the descriptors leave memory as it says while they
 /// load, not after. With `neighbour_graph`, the index keeps one from the
 /// start (see [`graph_file`]).
@@ -224,7 +252,7 @@ fn load_index(
     dim: usize,
     sequence: u64,
     neighbour_graph: bool,
-) -> Result<(Index, IndexSource, Option<u64>), StoreError> {
+) -> Result<LoadedIndex, StoreError> {
     let reason = match from_snapshot(
         placement,
         keyframes,
@@ -235,12 +263,18 @@ fn load_index(
         sequence,
         neighbour_graph,
     ) {
-        Ok(Ok((index, replayed, snapshot_sequence))) => {
-            return Ok((
+        Ok(Ok(SnapshotLoad {
+            index,
+            replayed,
+            sequence,
+            graph,
+        })) => {
+            return Ok(LoadedIndex {
                 index,
-                IndexSource::Snapshot { replayed },
-                Some(snapshot_sequence),
-            ))
+                source: IndexSource::Snapshot { replayed },
+                snapshot_sequence: Some(sequence),
+                graph,
+            })
         }
         Ok(Err(reason)) => reason,
         Err(StoreError::Snapshot(e)) => e.to_string(),
@@ -262,12 +296,20 @@ fn load_index(
         }
     }
     placement.apply(&mut index);
-    if neighbour_graph {
-        // Built once from every row (on every core), not row by row.
-        let _ = std::fs::remove_file(graph_file::path(placement.dir()));
-        graph_file::attach(placement.dir(), &mut index);
-    }
-    Ok((index, IndexSource::Tree { reason }, None))
+    let graph = if neighbour_graph {
+        // Built once from every row (on every core), not row by row,
+        // unless a restore left one in step with the records.
+        graph_file::attach_rebuilt(placement.dir(), &mut index)
+    } else {
+        graph_file::discard_restored(placement.dir());
+        None
+    };
+    Ok(LoadedIndex {
+        index,
+        source: IndexSource::Tree { reason },
+        snapshot_sequence: None,
+        graph,
+    })
 }
 
 /// Takes every stored verdict into the index. Verdicts are few (one per
@@ -295,8 +337,8 @@ fn load_verdicts(tree: &sled::Tree, index: &mut Index) -> Result<(), StoreError>
 
 const NO_SNAPSHOT: &str = "no snapshot";
 
-/// The snapshot's index plus the journal's changes since, with the number
-/// of keys replayed and the snapshot's sequence; or why it cannot be used.
+/// The snapshot's index plus the journal's changes since; or why it cannot
+/// be used.
 /// With `neighbour_graph`, the graph is attached before the replay, which
 /// then updates it.
 #[allow(clippy::too_many_arguments)]
@@ -309,7 +351,7 @@ fn from_snapshot(
     dim: usize,
     sequence: u64,
     neighbour_graph: bool,
-) -> Result<Result<(Index, usize, u64), String>, StoreError> {
+) -> Result<Result<SnapshotLoad, String>, StoreError> {
     let Some((header, mut index)) =
         snapshot::read(placement.dir(), store_id, dim, placement.rule())?
     else {
@@ -328,9 +370,11 @@ fn from_snapshot(
             header.sequence
         )));
     }
-    if neighbour_graph {
-        graph_file::attach(placement.dir(), &mut index);
-    }
+    let graph = if neighbour_graph {
+        graph_file::attach(placement.dir(), &mut index)
+    } else {
+        None
+    };
     let pending = journal::pending(journal_tree, header.sequence)?;
     for key in &pending.keys {
         match keyframes.get(key)? {
@@ -359,7 +403,12 @@ fn from_snapshot(
         )));
     }
     placement.apply(&mut index);
-    Ok(Ok((index, pending.keys.len(), header.sequence)))
+    Ok(Ok(SnapshotLoad {
+        index,
+        replayed: pending.keys.len(),
+        sequence: header.sequence,
+        graph,
+    }))
 }
 
 /// Writes the format version into a new store, upgrades a store of an

@@ -304,8 +304,26 @@ impl PlaceRecognition for PlaceRecognitionService {
                 .as_ref()
                 .is_none_or(|r| r.iter().any(|x| x == robot))
         };
-        let (keyframes, descriptor_dim, maps, verdicts, point) = {
+        let (keyframes, descriptor_dim, maps, verdicts, point, graph) = {
             let index = self.pipeline.store().index();
+            let graph = index
+                .neighbour_graph()
+                .filter(|_| readable.is_none())
+                .map(|graph| {
+                    let params = self.pipeline.params();
+                    proto::NeighbourGraphStats {
+                        keyframes: (index.len() - index.neighbour_graph_missing()) as u64,
+                        missing: index.neighbour_graph_missing() as u64,
+                        memory_bytes: graph.memory_bytes() as u64,
+                        loaded: self.pipeline.store().opened().graph
+                            == Some(humem_store::graph_file::GraphSource::Loaded),
+                        approximate_from: if params.exact {
+                            0
+                        } else {
+                            params.approximate_from as u64
+                        },
+                    }
+                });
             let point = index.operating_point(self.pipeline.params(), unix_now());
             let maps: Vec<proto::MapStats> = index
                 .map_counts()
@@ -329,7 +347,7 @@ impl PlaceRecognition for PlaceRecognitionService {
                         .count() as u64,
                 ),
             };
-            (keyframes, index.dim() as u32, maps, verdicts, point)
+            (keyframes, index.dim() as u32, maps, verdicts, point, graph)
         };
         let disk_bytes = match readable {
             None => self.pipeline.store().disk_bytes(),
@@ -351,6 +369,7 @@ impl PlaceRecognition for PlaceRecognitionService {
                 configured_precision: point.base_precision,
                 verdicts: point.verdicts as u64,
             }),
+            neighbour_graph: graph,
         }))
     }
 }

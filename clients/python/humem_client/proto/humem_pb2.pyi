@@ -590,7 +590,7 @@ class MapStats(_message.Message):
     def __init__(self, robot_id: _Optional[str] = ..., session_id: _Optional[str] = ..., map_id: _Optional[int] = ..., keyframes: _Optional[int] = ...) -> None: ...
 
 class StatsResponse(_message.Message):
-    __slots__ = ("keyframes", "descriptor_dim", "maps", "disk_bytes", "format_version", "server_version", "log_position", "verdicts", "operating_point")
+    __slots__ = ("keyframes", "descriptor_dim", "maps", "disk_bytes", "format_version", "server_version", "log_position", "verdicts", "operating_point", "neighbour_graph")
     KEYFRAMES_FIELD_NUMBER: _ClassVar[int]
     DESCRIPTOR_DIM_FIELD_NUMBER: _ClassVar[int]
     MAPS_FIELD_NUMBER: _ClassVar[int]
@@ -600,6 +600,7 @@ class StatsResponse(_message.Message):
     LOG_POSITION_FIELD_NUMBER: _ClassVar[int]
     VERDICTS_FIELD_NUMBER: _ClassVar[int]
     OPERATING_POINT_FIELD_NUMBER: _ClassVar[int]
+    NEIGHBOUR_GRAPH_FIELD_NUMBER: _ClassVar[int]
     keyframes: int
     descriptor_dim: int
     maps: _containers.RepeatedCompositeFieldContainer[MapStats]
@@ -609,7 +610,22 @@ class StatsResponse(_message.Message):
     log_position: int
     verdicts: int
     operating_point: OperatingPoint
-    def __init__(self, keyframes: _Optional[int] = ..., descriptor_dim: _Optional[int] = ..., maps: _Optional[_Iterable[_Union[MapStats, _Mapping]]] = ..., disk_bytes: _Optional[int] = ..., format_version: _Optional[int] = ..., server_version: _Optional[str] = ..., log_position: _Optional[int] = ..., verdicts: _Optional[int] = ..., operating_point: _Optional[_Union[OperatingPoint, _Mapping]] = ...) -> None: ...
+    neighbour_graph: NeighbourGraphStats
+    def __init__(self, keyframes: _Optional[int] = ..., descriptor_dim: _Optional[int] = ..., maps: _Optional[_Iterable[_Union[MapStats, _Mapping]]] = ..., disk_bytes: _Optional[int] = ..., format_version: _Optional[int] = ..., server_version: _Optional[str] = ..., log_position: _Optional[int] = ..., verdicts: _Optional[int] = ..., operating_point: _Optional[_Union[OperatingPoint, _Mapping]] = ..., neighbour_graph: _Optional[_Union[NeighbourGraphStats, _Mapping]] = ...) -> None: ...
+
+class NeighbourGraphStats(_message.Message):
+    __slots__ = ("keyframes", "missing", "memory_bytes", "loaded", "approximate_from")
+    KEYFRAMES_FIELD_NUMBER: _ClassVar[int]
+    MISSING_FIELD_NUMBER: _ClassVar[int]
+    MEMORY_BYTES_FIELD_NUMBER: _ClassVar[int]
+    LOADED_FIELD_NUMBER: _ClassVar[int]
+    APPROXIMATE_FROM_FIELD_NUMBER: _ClassVar[int]
+    keyframes: int
+    missing: int
+    memory_bytes: int
+    loaded: bool
+    approximate_from: int
+    def __init__(self, keyframes: _Optional[int] = ..., missing: _Optional[int] = ..., memory_bytes: _Optional[int] = ..., loaded: _Optional[bool] = ..., approximate_from: _Optional[int] = ...) -> None: ...
 
 class OperatingPoint(_message.Message):
     __slots__ = ("threshold", "configured_threshold", "estimated_precision", "configured_precision", "verdicts")

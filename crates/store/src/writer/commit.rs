@@ -25,6 +25,7 @@ use crate::checkpoint::Checkpoints;
 use crate::disk::Short;
 use crate::error::StoreError;
 use crate::export::{self, ExportHeader};
+use crate::graph_file;
 use crate::journal;
 use crate::layout::{META_DIM, META_LOG_POSITION, STORE_FORMAT};
 use crate::mutation::{LogApplied, LogEntry, Mutation, MutationOutcome};
@@ -34,6 +35,10 @@ use crate::rollback::{Counters, Rollback, TreeName};
 
 /// Most changes committed by one flush.
 const MAX_GROUP: usize = 256;
+
+/// The longest an export waits for the publisher to take the flushed
+/// groups into the index (it waits out the scans running).
+const PUBLISH_WAIT: std::time::Duration = std::time::Duration::from_secs(60);
 
 /// Whether a change adds data (refused near a full disk; removals are not).
 fn adds_data(mutation: &Mutation) -> bool {
@@ -186,6 +191,7 @@ impl Writer {
             keyframes: self.keyframes,
             verdicts: self.trees.verdicts.len() as u64,
         };
+        let graph = self.graph_for_export(file);
         let out = std::fs::File::create(file)
             .map_err(|e| StoreError::Export(format!("{}: {e}", file.display())))?;
         let trees = [
@@ -193,10 +199,42 @@ impl Writer {
             (export::TREES[1].0, &self.trees.verdicts),
             (export::TREES[2].0, &self.trees.verdicts_by_candidate),
         ];
-        export::write(header, &trees, &out)?;
+        let written = export::write(header, &trees, graph.as_deref(), &out);
+        if let Some(graph) = &graph {
+            let _ = std::fs::remove_file(graph);
+        }
+        written?;
         out.sync_all()
             .map_err(|e| StoreError::Export(format!("{}: {e}", file.display())))?;
         Ok(header)
+    }
+
+    /// The index's neighbour graph saved beside `file` for its export, in
+    /// step with sled: once the publisher has taken every flushed group
+    /// into the index (this thread sends no more meanwhile). None where
+    /// the index keeps no graph, or it could not be saved (the export then
+    /// goes without, and a store restored from it builds its own).
+    fn graph_for_export(&self, file: &std::path::Path) -> Option<std::path::PathBuf> {
+        let started = std::time::Instant::now();
+        while self.checkpoints.applied.load(Ordering::Acquire) < self.sequence {
+            if started.elapsed() > PUBLISH_WAIT {
+                tracing::warn!("the index is behind the store: the export goes without its graph");
+                return None;
+            }
+            std::thread::sleep(std::time::Duration::from_millis(1));
+        }
+        let mut name = file.as_os_str().to_owned();
+        name.push(".graph");
+        let graph = std::path::PathBuf::from(name);
+        match graph_file::save_for_export(&graph, &self.checkpoints.index) {
+            Ok(true) => Some(graph),
+            Ok(false) => None,
+            Err(e) => {
+                tracing::warn!(error = %e, "saving the neighbour graph for an export failed: the export goes without it");
+                let _ = std::fs::remove_file(&graph);
+                None
+            }
+        }
     }
 
     /// Flushes a staged group and hands it to the publisher, or rolls it
