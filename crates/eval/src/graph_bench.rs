@@ -76,6 +76,19 @@ struct Point {
     scal_top5: f64,
     search_ms: f64,
     search_top1: f64,
+    /// Median |null location − the exact pass's| over the queries.
+    null_shift: f32,
+    /// Median exact top-1 `S_s` above the exact null: what the shift is
+    /// to be read against.
+    margin: f32,
+}
+
+fn median(mut values: Vec<f32>) -> f32 {
+    if values.is_empty() {
+        return 0.0;
+    }
+    let m = values.len() / 2;
+    *values.select_nth_unstable_by(m, f32::total_cmp).1
 }
 
 /// Runs the benchmark and prints its table.
@@ -146,8 +159,8 @@ fn measure(
         let query = ScalQuery { history: vec![q] };
         one_core.install(|| {
             let started = Instant::now();
-            let hits = scal_scan(params, &query, &index, &filter).hits;
-            (started.elapsed(), hits)
+            let scan = scal_scan(params, &query, &index, &filter);
+            (started.elapsed(), scan)
         })
     };
     let reference: Vec<_> = queries.iter().map(|q| run(&exact, q)).collect();
@@ -170,8 +183,14 @@ fn measure(
             ..config.vpr.clone()
         };
         let (mut times, mut top1, mut top5) = (Vec::new(), 0usize, 0usize);
-        for (q, (_, want)) in queries.iter().zip(&reference) {
-            let (took, hits) = run(&params, q);
+        let (mut null_shift, mut margin) = (Vec::new(), Vec::new());
+        for (q, (_, exact)) in queries.iter().zip(&reference) {
+            let (took, scan) = run(&params, q);
+            let (hits, want) = (&scan.hits, &exact.hits);
+            null_shift.push((scan.null.location - exact.null.location).abs());
+            if let Some(best) = want.first() {
+                margin.push(best.score - exact.null.location);
+            }
             times.push(took);
             top1 += usize::from(hits.first().map(|h| h.row) == want.first().map(|h| h.row));
             let want5: Vec<usize> = want.iter().take(5).map(|h| h.row).collect();
@@ -187,13 +206,11 @@ fn measure(
             let found = index
                 .nearest_rows(&q.descriptor, candidates, &|_| true)
                 .unwrap_or_default();
-            let best = found.into_iter().max_by(|&a, &b| {
-                let (da, db) = (
-                    dot_f32_wide(&q.descriptor, &index.descriptor(a)),
-                    dot_f32_wide(&q.descriptor, &index.descriptor(b)),
-                );
-                da.total_cmp(&db).then(b.cmp(&a))
-            });
+            let best = found
+                .into_iter()
+                .map(|row| (dot_f32_wide(&q.descriptor, &index.descriptor(row)), row))
+                .max_by(|a, b| a.0.total_cmp(&b.0).then(b.1.cmp(&a.1)))
+                .map(|(_, row)| row);
             search_times.push(started.elapsed());
             search_top1 += usize::from(best == Some(want));
         }
@@ -205,6 +222,8 @@ fn measure(
             scal_top5: top5 as f64 / (5.0 * n),
             search_ms: median_ms(search_times.into_iter()),
             search_top1: search_top1 as f64 / n,
+            null_shift: median(null_shift),
+            margin: median(margin),
         });
     }
     Ok(Measured {
@@ -293,16 +312,18 @@ fn print(args: &GraphBench, table: &[Measured]) {
             m.graph_bytes as f64 / m.rows.max(1) as f64,
             m.exact_ms
         );
-        println!("| candidates | SCAL ms | × exact | SCAL top-1 | SCAL top-5 | search ms | search top-1 |");
-        println!("| ---: | ---: | ---: | ---: | ---: | ---: | ---: |");
+        println!("| candidates | SCAL ms | × exact | SCAL top-1 | SCAL top-5 | null shift / top-1 margin | search ms | search top-1 |");
+        println!("| ---: | ---: | ---: | ---: | ---: | ---: | ---: | ---: |");
         for p in &m.curves {
             println!(
-                "| {} | {:.3} | {:.3} | {:.3} | {:.3} | {:.3} | {:.3} |",
+                "| {} | {:.3} | {:.3} | {:.3} | {:.3} | {:.4} / {:.3} | {:.3} | {:.3} |",
                 p.candidates,
                 p.scal_ms,
                 p.scal_ms / m.exact_ms.max(1e-9),
                 p.scal_top1,
                 p.scal_top5,
+                p.null_shift,
+                p.margin,
                 p.search_ms,
                 p.search_top1
             );

@@ -175,9 +175,10 @@ pub enum TemporalMode {
 
 /// Default of [`VprParams::approximate_from`]: where a query over the
 /// neighbour graph's candidates costs about half the exact pass over every
-/// eligible row (they cost the same near 22 000 at 1280 values, `humem
-/// bench graph`); below it every answer is exact.
-pub const APPROXIMATE_FROM: usize = 50_000;
+/// eligible row (they cost the same near 12 000 at 1280 values, `humem
+/// bench graph`); below it every answer is exact, which covers a loop
+/// query over any one robot's map of up to that many keyframes.
+pub const APPROXIMATE_FROM: usize = 20_000;
 
 /// Default of [`VprParams::approximate_candidates`].
 pub const APPROXIMATE_CANDIDATES: usize = 100;

@@ -170,6 +170,21 @@ impl<'a> QuerySide<'a> {
         )
     }
 
+    /// `s_e` of step `j` and `row` from the codes' estimate of their
+    /// product.
+    pub(super) fn pair_estimate<M: KeyframeMemory + ?Sized>(
+        &self,
+        memory: &M,
+        codes: &[QueryCode],
+        kernel: CodeKernel,
+        row: usize,
+        j: usize,
+    ) -> f32 {
+        let m = memory.descriptors().codes();
+        let [(estimate, _)] = m.dot_bounds(kernel, row, &[&codes[j]]);
+        self.fused(memory, row, j, estimate)
+    }
+
     /// The exact hit of `row`, following its predecessors, whose products
     /// `table` holds.
     pub(super) fn exact_hit<M: KeyframeMemory + ?Sized>(

@@ -36,10 +36,13 @@
 //! it is walked; each is scored exactly, temporal context included, and
 //! the best `K` kept. Its cost grows with the logarithm of the store, not
 //! the store; what it can get wrong is only a row the graph did not
-//! propose. The null model is taken from the same sample as the full
-//! passes (every `stride`-th eligible row by its tag), found by a walk
-//! over the rows' tags, and bounded with the codes as the compressed pass
-//! does; the eligible count is the rows of the admitted maps.
+//! propose. Its null model is approximate too, and cheap: a sample of
+//! 1–2 thousand eligible rows chosen by their tags as the full passes'
+//! (the tag a multiple of a power of two, a mask over the tags), each
+//! scored from the codes' estimates alone; the eligible count is the rows
+//! of the admitted maps. Bounding the sample and rescoring it exactly, as
+//! the compressed pass does, cost four times the graph's search and
+//! changed the calibration by less than the sample's own noise.
 //!
 //! A filter that names its [partition](RowFilter::partition) (the rows of
 //! the maps a query may see) is scanned over those rows only, in row
@@ -159,8 +162,8 @@ fn approximate_for<E: RowFilter + ?Sized>(params: &VprParams, eligible: &E) -> O
 /// The approximate pass: the neighbour graph's `approximate_candidates`
 /// eligible rows nearest to the current observation, each scored exactly
 /// (with its temporal context), the best `top_k` kept; the null model from
-/// the same sample a full pass takes, with `admitted` standing for the
-/// eligible count. None where the memory keeps no graph.
+/// the codes over a tag sample ([`approximate_sample`]), with `admitted`
+/// standing for the eligible count. None where the memory keeps no graph.
 fn approximate_scan<M, E>(
     params: &VprParams,
     side: &QuerySide,
@@ -177,16 +180,10 @@ where
     let candidates = memory.nearest(side.descriptors[0], count, &keep)?;
     let mut hits = side.exact_hits(params, memory, &candidates);
     top_k(&mut hits, params.top_k);
-    let matrix = memory.descriptors();
     let kernel = CodeKernel::detect();
     let codes = side.codes(memory, kernel);
-    let sampler = Sampler::new(NullModel::stride(admitted));
-    let sample: Vec<usize> = (0..matrix.len())
-        .into_par_iter()
-        .with_min_len(BLOCK)
-        .filter(|&row| sampler.keeps(memory.sample_tag(row)) && eligible.test(row))
-        .collect();
-    let location = sample_median(params, side, memory, &codes, kernel, &sample);
+    let sample = approximate_sample(memory, eligible, admitted);
+    let location = estimated_median(params, side, memory, &codes, kernel, &sample);
     Some(ScalScan {
         hits,
         null: NullModel {
@@ -195,6 +192,58 @@ where
         },
         eligible: admitted,
     })
+}
+
+/// The approximate pass's null sample: the eligible rows whose sample tag
+/// is a multiple of the power of two at or above the full pass's stride
+/// (between half and all of [`NULL_SAMPLE_CAP`](crate::vpr::calibration::NULL_SAMPLE_CAP)
+/// rows). Chosen by key as the full pass's is, so replicas and restarts
+/// take the same sample; a mask instead of a division, so that walking a
+/// million tags costs about a millisecond.
+fn approximate_sample<M, E>(memory: &M, eligible: &E, admitted: usize) -> Vec<usize>
+where
+    M: KeyframeMemory + ?Sized,
+    E: RowFilter + ?Sized,
+{
+    let stride = NullModel::stride(admitted).next_power_of_two();
+    let mask = u32::try_from(stride - 1).unwrap_or(u32::MAX);
+    (0..memory.descriptors().len())
+        .filter(|&row| memory.sample_tag(row) & mask == 0 && eligible.test(row))
+        .collect()
+}
+
+/// The median `S_s` of `rows` from the codes' estimates of their products
+/// (temporal context included), without reading an f32 row: the
+/// approximate pass's null. Its error is the codes' (a fraction of a
+/// percent of a product), far below the spread of the null, so the
+/// calibrated scores move by less than the sample's own noise.
+fn estimated_median<M: KeyframeMemory + ?Sized>(
+    params: &VprParams,
+    side: &QuerySide,
+    memory: &M,
+    codes: &[QueryCode],
+    kernel: CodeKernel,
+    rows: &[usize],
+) -> f32 {
+    if rows.is_empty() {
+        return 0.0;
+    }
+    let steps = side.steps();
+    let mut scores: Vec<f32> = rows
+        .iter()
+        .map(|&row| {
+            temporal_hit(params, memory, steps, row, |c, j| {
+                (
+                    side.pair_estimate(memory, codes, kernel, c, j),
+                    side.scenes[j].compatibility(memory.scene(c)),
+                )
+            })
+            .score
+        })
+        .collect();
+    let m = scores.len() / 2;
+    let (_, median, _) = scores.select_nth_unstable_by(m, f32::total_cmp);
+    *median
 }
 
 /// The fewest stored rows from which `mode` scans the codes first on this
