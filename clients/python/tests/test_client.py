@@ -99,6 +99,10 @@ class ClientTest(unittest.TestCase):
         self.assertEqual({(m.map_id, m.keyframes) for m in stats.maps if m.session_id == "s1"}, {(0, 3), (1, 3)})
         self.assertTrue(stats.server_version)
         self.assertIsNotNone(stats.operating_point)
+        # The server keeps a neighbour graph by default, over every keyframe.
+        self.assertIsNotNone(stats.neighbour_graph)
+        self.assertEqual((stats.neighbour_graph.keyframes, stats.neighbour_graph.missing), (6, 0))
+        self.assertFalse(stats.neighbour_graph.loaded)
 
         moved = self.client.update_poses([hc.PoseUpdate(keyframe_id=2, pose=hc.Pose(translation=[9, 9, 9]), map_id=5),
                                           hc.PoseUpdate(keyframe_id=77, pose=hc.Pose())])
