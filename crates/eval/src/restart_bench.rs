@@ -10,12 +10,21 @@
 //! another: what a SIGKILL leaves. Both opens then read files the kernel
 //! has just cached, as a restart on the same machine does; a cold disk adds
 //! its read time to both.
+//!
+//! With `--neighbour-graph` the store keeps its neighbour graph as the
+//! server does (`store.neighbour_graph`): the writer adds every keyframe
+//! to it, the snapshot saves it, and the snapshot open loads it and adds
+//! the replayed keyframes. That open is timed against the same snapshot
+//! opened without the graph, in the same run; the cluster export carries
+//! the graph and the restored store loads it. The tree open stays without
+//! the graph (with it, it would build one from every row: minutes).
 
 use std::path::{Path, PathBuf};
 use std::time::Duration;
 
 use anyhow::{ensure, Context};
 
+use humem_store::graph_file::GraphSource;
 use humem_store::{IndexSource, Mutation, Store, StoreOptions};
 
 use crate::scan_bench::{timed, SyntheticFleet};
@@ -39,6 +48,9 @@ pub struct RestartBench {
     /// it, removed afterwards).
     #[arg(long, default_value_os_t = std::env::temp_dir())]
     pub dir: PathBuf,
+    /// Keep the neighbour graph, as the server does by default.
+    #[arg(long)]
+    pub neighbour_graph: bool,
 }
 
 /// Keyframes per insert while the store is built.
@@ -59,23 +71,38 @@ struct Row {
     export: Duration,
     export_bytes: u64,
     restore: Duration,
+    /// With the graph: the same snapshot opened without it, the graph's
+    /// file size and its memory.
+    graph: Option<GraphFigures>,
+}
+
+/// What the neighbour graph adds to a restart.
+struct GraphFigures {
+    snapshot_without: Duration,
+    file_bytes: u64,
+    memory_bytes: usize,
 }
 
 /// The server's defaults where they matter here: the descriptors leave
 /// memory where `store.descriptors = "auto"` would move them (1M × 512:
 /// yes; 100k × 512: no), so that the opens include that.
-fn options() -> StoreOptions {
+fn options(neighbour_graph: bool) -> StoreOptions {
     let auto = humem_server::config::StoreConfig::default();
     StoreOptions {
         snapshot_every: 0,
         descriptors_to_file: auto.descriptors_to_file(humem_core::vpr::params::ScanMode::Auto),
+        neighbour_graph,
         ..StoreOptions::default()
     }
 }
 
-fn open(dir: &Path) -> anyhow::Result<Store> {
-    Store::open_with(dir, options(), humem_core::observe::unobserved())
-        .with_context(|| format!("opening the store in {}", dir.display()))
+fn open(dir: &Path, neighbour_graph: bool) -> anyhow::Result<Store> {
+    Store::open_with(
+        dir,
+        options(neighbour_graph),
+        humem_core::observe::unobserved(),
+    )
+    .with_context(|| format!("opening the store in {}", dir.display()))
 }
 
 /// Gives a dropped store's writer thread time to flush and let go of the
@@ -85,16 +112,20 @@ fn settle() {
 }
 
 /// Opens the store once its previous handle's threads have let go of it.
-fn reopen(dir: &Path) -> anyhow::Result<Store> {
+fn reopen(dir: &Path, neighbour_graph: bool) -> anyhow::Result<Store> {
     for _ in 0..250 {
-        match Store::open_with(dir, options(), humem_core::observe::unobserved()) {
+        match Store::open_with(
+            dir,
+            options(neighbour_graph),
+            humem_core::observe::unobserved(),
+        ) {
             Err(humem_store::StoreError::Open { .. }) => {
                 std::thread::sleep(Duration::from_millis(20))
             }
             other => return other.context("reopening the store"),
         }
     }
-    open(dir)
+    open(dir, neighbour_graph)
 }
 
 /// Runs the benchmark and prints the table.
@@ -108,7 +139,8 @@ pub async fn restart(args: RestartBench) -> anyhow::Result<()> {
         let dir = parent.path();
         eprintln!("bench restart: writing a store of {rows} x {}", args.dim);
         let mut fleet = SyntheticFleet::new(rows + args.replay, args.dim, args.robots);
-        let store = open(dir)?;
+        let graph = args.neighbour_graph;
+        let store = open(dir, graph)?;
         let insert = |store: &Store, range: std::ops::Range<usize>, fleet: &mut SyntheticFleet| {
             let keyframes = range.map(|i| fleet.keyframe(i)).collect();
             let store = store.clone();
@@ -134,8 +166,23 @@ pub async fn restart(args: RestartBench) -> anyhow::Result<()> {
         drop(store);
         settle();
 
+        // Today's restart, the baseline of the graph's: the same snapshot
+        // and journal, the graph's file left unread.
+        let snapshot_without = if graph {
+            eprintln!("bench restart: opening from the snapshot, without the graph");
+            let (took, store) = timed(|| reopen(dir, false));
+            ensure!(
+                matches!(store?.opened().source, IndexSource::Snapshot { .. }),
+                "the store did not open from its snapshot"
+            );
+            settle();
+            Some(took)
+        } else {
+            None
+        };
+
         eprintln!("bench restart: opening from the snapshot");
-        let (snapshot, store) = timed(|| reopen(dir));
+        let (snapshot, store) = timed(|| reopen(dir, graph));
         let store = store?;
         let IndexSource::Snapshot { replayed } = store.opened().source else {
             anyhow::bail!(
@@ -148,25 +195,34 @@ pub async fn restart(args: RestartBench) -> anyhow::Result<()> {
             keyframes == rows + args.replay,
             "{keyframes} keyframes after the snapshot open"
         );
-        drop(store);
-        settle();
-
-        eprintln!("bench restart: opening from the tree");
-        let aside = dir.join("bench.snapshot");
-        std::fs::rename(humem_store::snapshot::path(dir), &aside)?;
-        let (tree, store) = timed(|| reopen(dir));
-        let store = store?;
-        ensure!(
-            matches!(store.opened().source, IndexSource::Tree { .. }),
-            "the store did not rebuild from the tree"
-        );
-        ensure!(
-            store.index().len() == keyframes,
-            "the tree and the snapshot disagree"
-        );
+        let graph_figures = match snapshot_without {
+            Some(snapshot_without) => {
+                ensure!(
+                    store.opened().graph == Some(GraphSource::Loaded),
+                    "the snapshot open did not load the graph: {:?}",
+                    store.opened().graph
+                );
+                let index = store.index();
+                let held = index
+                    .neighbour_graph()
+                    .context("no graph after the snapshot open")?;
+                ensure!(
+                    held.len() == keyframes,
+                    "the graph holds {} of {keyframes} keyframes",
+                    held.len()
+                );
+                Some(GraphFigures {
+                    snapshot_without,
+                    file_bytes: std::fs::metadata(humem_store::graph_file::path(dir))?.len(),
+                    memory_bytes: held.memory_bytes(),
+                })
+            }
+            None => None,
+        };
 
         // What a cluster snapshot costs: the export on the writer thread,
-        // and a new replica's restore from it (then its open, from the tree).
+        // and a new replica's restore from it (then its open, from the tree,
+        // loading the graph the export carries).
         eprintln!("bench restart: exporting the store, as a cluster snapshot does");
         let file = parent.path().join("export.bin");
         let started = std::time::Instant::now();
@@ -183,12 +239,35 @@ pub async fn restart(args: RestartBench) -> anyhow::Result<()> {
         let restored_dir = parent.path().join("restored");
         let (restore, restored) = timed(|| {
             humem_store::export::restore(&restored_dir, &file)?;
-            reopen(&restored_dir)
+            reopen(&restored_dir, graph)
         });
+        let restored = restored?;
         ensure!(
-            restored?.index().len() == keyframes,
+            restored.index().len() == keyframes,
             "the restored store differs"
         );
+        ensure!(
+            !graph || restored.opened().graph == Some(GraphSource::Loaded),
+            "the restored store built its graph instead of loading the export's"
+        );
+        drop(restored);
+        std::fs::remove_file(&file)?;
+        settle();
+
+        eprintln!("bench restart: opening from the tree");
+        let aside = dir.join("bench.snapshot");
+        std::fs::rename(humem_store::snapshot::path(dir), &aside)?;
+        let (tree, store) = timed(|| reopen(dir, false));
+        let store = store?;
+        ensure!(
+            matches!(store.opened().source, IndexSource::Tree { .. }),
+            "the store did not rebuild from the tree"
+        );
+        ensure!(
+            store.index().len() == keyframes,
+            "the tree and the snapshot disagree"
+        );
+        drop(store);
         settle();
         table.push(Row {
             rows,
@@ -202,6 +281,7 @@ pub async fn restart(args: RestartBench) -> anyhow::Result<()> {
             export,
             export_bytes,
             restore,
+            graph: graph_figures,
         });
     }
     println!(
@@ -228,6 +308,24 @@ pub async fn restart(args: RestartBench) -> anyhow::Result<()> {
             r.export_bytes as f64 / 1e9,
             r.restore.as_secs_f64(),
         );
+    }
+    if args.neighbour_graph {
+        println!();
+        println!("The neighbour graph at the snapshot open: the same snapshot and journal opened without it, in the same run");
+        println!("| keyframes | without the graph | with it (loaded, replayed keys added) | ratio | graph file | graph memory a keyframe |");
+        println!("| --- | --- | --- | --- | --- | --- |");
+        for r in &table {
+            let Some(g) = &r.graph else { continue };
+            println!(
+                "| {} | {:.2} s | {:.2} s | {:.2}x | {:.2} GB | {:.0} B |",
+                r.rows,
+                g.snapshot_without.as_secs_f64(),
+                r.snapshot.as_secs_f64(),
+                r.snapshot.as_secs_f64() / g.snapshot_without.as_secs_f64(),
+                g.file_bytes as f64 / 1e9,
+                g.memory_bytes as f64 / (r.rows + r.replayed) as f64,
+            );
+        }
     }
     Ok(())
 }

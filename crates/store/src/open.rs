@@ -376,6 +376,8 @@ fn from_snapshot(
         None
     };
     let pending = journal::pending(journal_tree, header.sequence)?;
+    // The replayed keyframes enter the graph together, on every core.
+    index.defer_graph_inserts();
     for key in &pending.keys {
         match keyframes.get(key)? {
             Some(value) => {
@@ -395,6 +397,7 @@ fn from_snapshot(
             }
         }
     }
+    index.flush_graph_inserts();
     let expected = pending.keyframes.unwrap_or(header.rows as u64);
     if index.len() as u64 != expected {
         return Ok(Err(format!(
