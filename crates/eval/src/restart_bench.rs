@@ -134,156 +134,208 @@ pub async fn restart(args: RestartBench) -> anyhow::Result<()> {
     ensure!(args.robots > 0, "--robots must be at least 1");
     let mut table = Vec::new();
     for &rows in &args.rows {
-        let parent = tempfile::tempdir_in(&args.dir)
-            .with_context(|| format!("making a store directory in {}", args.dir.display()))?;
-        let dir = parent.path();
-        eprintln!("bench restart: writing a store of {rows} x {}", args.dim);
-        let mut fleet = SyntheticFleet::new(rows + args.replay, args.dim, args.robots);
-        let graph = args.neighbour_graph;
-        let store = open(dir, graph)?;
-        let insert = |store: &Store, range: std::ops::Range<usize>, fleet: &mut SyntheticFleet| {
-            let keyframes = range.map(|i| fleet.keyframe(i)).collect();
-            let store = store.clone();
-            async move { store.apply(Mutation::Insert(keyframes)).await }
-        };
-        let started = std::time::Instant::now();
-        for start in (0..rows).step_by(BATCH) {
-            insert(&store, start..(start + BATCH).min(rows), &mut fleet).await?;
-        }
-        let insert_rate = rows as f64 / started.elapsed().as_secs_f64();
-        eprintln!("bench restart: taking a snapshot");
-        let report = store
-            .snapshot()?
-            .context("a new store has a snapshot to write")?;
-        for start in (rows..rows + args.replay).step_by(BATCH) {
-            insert(
-                &store,
-                start..(start + BATCH).min(rows + args.replay),
-                &mut fleet,
-            )
-            .await?;
-        }
-        drop(store);
-        settle();
-
-        // Today's restart, the baseline of the graph's: the same snapshot
-        // and journal, the graph's file left unread.
-        let snapshot_without = if graph {
-            eprintln!("bench restart: opening from the snapshot, without the graph");
-            let (took, store) = timed(|| reopen(dir, false));
-            ensure!(
-                matches!(store?.opened().source, IndexSource::Snapshot { .. }),
-                "the store did not open from its snapshot"
-            );
-            settle();
-            Some(took)
-        } else {
-            None
-        };
-
-        eprintln!("bench restart: opening from the snapshot");
-        let (snapshot, store) = timed(|| reopen(dir, graph));
-        let store = store?;
-        let IndexSource::Snapshot { replayed } = store.opened().source else {
-            anyhow::bail!(
-                "the store did not open from its snapshot: {:?}",
-                store.opened().source
-            );
-        };
-        let keyframes = store.index().len();
-        ensure!(
-            keyframes == rows + args.replay,
-            "{keyframes} keyframes after the snapshot open"
-        );
-        let graph_figures = match snapshot_without {
-            Some(snapshot_without) => {
-                ensure!(
-                    store.opened().graph == Some(GraphSource::Loaded),
-                    "the snapshot open did not load the graph: {:?}",
-                    store.opened().graph
-                );
-                let index = store.index();
-                let held = index
-                    .neighbour_graph()
-                    .context("no graph after the snapshot open")?;
-                ensure!(
-                    held.len() == keyframes,
-                    "the graph holds {} of {keyframes} keyframes",
-                    held.len()
-                );
-                Some(GraphFigures {
-                    snapshot_without,
-                    file_bytes: std::fs::metadata(humem_store::graph_file::path(dir))?.len(),
-                    memory_bytes: held.memory_bytes(),
-                })
-            }
-            None => None,
-        };
-
-        // What a cluster snapshot costs: the export on the writer thread,
-        // and a new replica's restore from it (then its open, from the tree,
-        // loading the graph the export carries).
-        eprintln!("bench restart: exporting the store, as a cluster snapshot does");
-        let file = parent.path().join("export.bin");
-        let started = std::time::Instant::now();
-        let header = store.export(&file).await?;
-        let export = started.elapsed();
-        ensure!(
-            header.keyframes as usize == keyframes,
-            "the export misses keyframes"
-        );
-        let export_bytes = std::fs::metadata(&file)?.len();
-        drop(store);
-        settle();
-        eprintln!("bench restart: restoring a new store from the export");
-        let restored_dir = parent.path().join("restored");
-        let (restore, restored) = timed(|| {
-            humem_store::export::restore(&restored_dir, &file)?;
-            reopen(&restored_dir, graph)
-        });
-        let restored = restored?;
-        ensure!(
-            restored.index().len() == keyframes,
-            "the restored store differs"
-        );
-        ensure!(
-            !graph || restored.opened().graph == Some(GraphSource::Loaded),
-            "the restored store built its graph instead of loading the export's"
-        );
-        drop(restored);
-        std::fs::remove_file(&file)?;
-        settle();
-
-        eprintln!("bench restart: opening from the tree");
-        let aside = dir.join("bench.snapshot");
-        std::fs::rename(humem_store::snapshot::path(dir), &aside)?;
-        let (tree, store) = timed(|| reopen(dir, false));
-        let store = store?;
-        ensure!(
-            matches!(store.opened().source, IndexSource::Tree { .. }),
-            "the store did not rebuild from the tree"
-        );
-        ensure!(
-            store.index().len() == keyframes,
-            "the tree and the snapshot disagree"
-        );
-        drop(store);
-        settle();
-        table.push(Row {
-            rows,
-            insert_rate,
-            tree,
-            snapshot,
-            replayed,
-            written: report.written,
-            synced: report.elapsed,
-            bytes: report.bytes,
-            export,
-            export_bytes,
-            restore,
-            graph: graph_figures,
-        });
+        table.push(measure(&args, rows).await?);
     }
+    print(&args, &table);
+    Ok(())
+}
+
+/// A store written for the benchmark: its snapshot report and insert rate.
+struct Written {
+    report: humem_store::SnapshotReport,
+    insert_rate: f64,
+}
+
+/// Writes `rows` keyframes through the store's writer, takes a snapshot,
+/// writes `args.replay` more and drops the store without another.
+async fn write_store(args: &RestartBench, dir: &Path, rows: usize) -> anyhow::Result<Written> {
+    eprintln!("bench restart: writing a store of {rows} x {}", args.dim);
+    let mut fleet = SyntheticFleet::new(rows + args.replay, args.dim, args.robots);
+    let store = open(dir, args.neighbour_graph)?;
+    let insert = |store: &Store, range: std::ops::Range<usize>, fleet: &mut SyntheticFleet| {
+        let keyframes = range.map(|i| fleet.keyframe(i)).collect();
+        let store = store.clone();
+        async move { store.apply(Mutation::Insert(keyframes)).await }
+    };
+    let started = std::time::Instant::now();
+    for start in (0..rows).step_by(BATCH) {
+        insert(&store, start..(start + BATCH).min(rows), &mut fleet).await?;
+    }
+    let insert_rate = rows as f64 / started.elapsed().as_secs_f64();
+    eprintln!("bench restart: taking a snapshot");
+    let report = store
+        .snapshot()?
+        .context("a new store has a snapshot to write")?;
+    for start in (rows..rows + args.replay).step_by(BATCH) {
+        insert(
+            &store,
+            start..(start + BATCH).min(rows + args.replay),
+            &mut fleet,
+        )
+        .await?;
+    }
+    drop(store);
+    settle();
+    Ok(Written {
+        report,
+        insert_rate,
+    })
+}
+
+/// Today's restart, the baseline of the graph's: the same snapshot and
+/// journal opened with the graph's file left unread.
+fn open_without_graph(dir: &Path) -> anyhow::Result<Duration> {
+    eprintln!("bench restart: opening from the snapshot, without the graph");
+    let (took, store) = timed(|| reopen(dir, false));
+    ensure!(
+        matches!(store?.opened().source, IndexSource::Snapshot { .. }),
+        "the store did not open from its snapshot"
+    );
+    settle();
+    Ok(took)
+}
+
+/// The graph a snapshot open loaded, checked to hold every keyframe.
+fn graph_figures(
+    store: &Store,
+    dir: &Path,
+    keyframes: usize,
+    snapshot_without: Duration,
+) -> anyhow::Result<GraphFigures> {
+    ensure!(
+        store.opened().graph == Some(GraphSource::Loaded),
+        "the snapshot open did not load the graph: {:?}",
+        store.opened().graph
+    );
+    let index = store.index();
+    let held = index
+        .neighbour_graph()
+        .context("no graph after the snapshot open")?;
+    ensure!(
+        held.len() == keyframes,
+        "the graph holds {} of {keyframes} keyframes",
+        held.len()
+    );
+    Ok(GraphFigures {
+        snapshot_without,
+        file_bytes: std::fs::metadata(humem_store::graph_file::path(dir))?.len(),
+        memory_bytes: held.memory_bytes(),
+    })
+}
+
+/// What a cluster snapshot costs: the export on the writer thread (its
+/// time and size), and a new replica's restore from it followed by its
+/// open, loading the graph the export carries.
+async fn export_and_restore(
+    store: Store,
+    parent: &Path,
+    keyframes: usize,
+    graph: bool,
+) -> anyhow::Result<(Duration, u64, Duration)> {
+    eprintln!("bench restart: exporting the store, as a cluster snapshot does");
+    let file = parent.join("export.bin");
+    let started = std::time::Instant::now();
+    let header = store.export(&file).await?;
+    let export = started.elapsed();
+    ensure!(
+        header.keyframes as usize == keyframes,
+        "the export misses keyframes"
+    );
+    let export_bytes = std::fs::metadata(&file)?.len();
+    drop(store);
+    settle();
+    eprintln!("bench restart: restoring a new store from the export");
+    let restored_dir = parent.join("restored");
+    let (restore, restored) = timed(|| {
+        humem_store::export::restore(&restored_dir, &file)?;
+        reopen(&restored_dir, graph)
+    });
+    let restored = restored?;
+    ensure!(
+        restored.index().len() == keyframes,
+        "the restored store differs"
+    );
+    ensure!(
+        !graph || restored.opened().graph == Some(GraphSource::Loaded),
+        "the restored store built its graph instead of loading the export's"
+    );
+    drop(restored);
+    std::fs::remove_file(&file)?;
+    settle();
+    Ok((export, export_bytes, restore))
+}
+
+/// The open that rebuilds the index from every record (the snapshot set
+/// aside), without the graph.
+fn open_from_tree(dir: &Path, keyframes: usize) -> anyhow::Result<Duration> {
+    eprintln!("bench restart: opening from the tree");
+    let aside = dir.join("bench.snapshot");
+    std::fs::rename(humem_store::snapshot::path(dir), &aside)?;
+    let (tree, store) = timed(|| reopen(dir, false));
+    let store = store?;
+    ensure!(
+        matches!(store.opened().source, IndexSource::Tree { .. }),
+        "the store did not rebuild from the tree"
+    );
+    ensure!(
+        store.index().len() == keyframes,
+        "the tree and the snapshot disagree"
+    );
+    drop(store);
+    settle();
+    Ok(tree)
+}
+
+/// One store size, every open of it.
+async fn measure(args: &RestartBench, rows: usize) -> anyhow::Result<Row> {
+    let parent = tempfile::tempdir_in(&args.dir)
+        .with_context(|| format!("making a store directory in {}", args.dir.display()))?;
+    let dir = parent.path();
+    let graph = args.neighbour_graph;
+    let written = write_store(args, dir, rows).await?;
+    let snapshot_without = if graph {
+        Some(open_without_graph(dir)?)
+    } else {
+        None
+    };
+    eprintln!("bench restart: opening from the snapshot");
+    let (snapshot, store) = timed(|| reopen(dir, graph));
+    let store = store?;
+    let IndexSource::Snapshot { replayed } = store.opened().source else {
+        anyhow::bail!(
+            "the store did not open from its snapshot: {:?}",
+            store.opened().source
+        );
+    };
+    let keyframes = store.index().len();
+    ensure!(
+        keyframes == rows + args.replay,
+        "{keyframes} keyframes after the snapshot open"
+    );
+    let graph_figures = match snapshot_without {
+        Some(without) => Some(graph_figures(&store, dir, keyframes, without)?),
+        None => None,
+    };
+    let (export, export_bytes, restore) =
+        export_and_restore(store, parent.path(), keyframes, graph).await?;
+    let tree = open_from_tree(dir, keyframes)?;
+    Ok(Row {
+        rows,
+        insert_rate: written.insert_rate,
+        tree,
+        snapshot,
+        replayed,
+        written: written.report.written,
+        synced: written.report.elapsed,
+        bytes: written.report.bytes,
+        export,
+        export_bytes,
+        restore,
+        graph: graph_figures,
+    })
+}
+
+fn print(args: &RestartBench, table: &[Row]) {
     println!(
         "Store open, {}-d; ratio against rebuilding from the tree in the same run",
         args.dim
@@ -292,7 +344,7 @@ pub async fn restart(args: RestartBench) -> anyhow::Result<()> {
         "| keyframes | from the tree | from the snapshot + journal | keys replayed | snapshot written / synced | snapshot size | inserts while building | cluster export (writes wait) / size | restore from it + open |"
     );
     println!("| --- | --- | --- | --- | --- | --- | --- | --- | --- |");
-    for r in &table {
+    for r in table {
         println!(
             "| {} | {:.2} s | {:.2} s ({:.2}x) | {} | {:.2} s / {:.2} s | {:.2} GB | {:.0}/s | {:.2} s / {:.2} GB | {:.2} s |",
             r.rows,
@@ -314,7 +366,7 @@ pub async fn restart(args: RestartBench) -> anyhow::Result<()> {
         println!("The neighbour graph at the snapshot open: the same snapshot and journal opened without it, in the same run");
         println!("| keyframes | without the graph | with it (loaded, replayed keys added) | ratio | graph file | graph memory a keyframe |");
         println!("| --- | --- | --- | --- | --- | --- |");
-        for r in &table {
+        for r in table {
             let Some(g) = &r.graph else { continue };
             println!(
                 "| {} | {:.2} s | {:.2} s | {:.2}x | {:.2} GB | {:.0} B |",
@@ -327,5 +379,4 @@ pub async fn restart(args: RestartBench) -> anyhow::Result<()> {
             );
         }
     }
-    Ok(())
 }
