@@ -2,7 +2,7 @@
 //! keyframes, verdicts, descriptor length and log position; the target's
 //! old contents are gone; damaged files are refused.
 
-use super::tests::{kf, open_when_free, session};
+use super::tests::{kf, open_retrying, open_when_free, session};
 use super::*;
 use crate::graph_file::GraphSource;
 use humem_core::verdict::{Verdict, VerificationKind};
@@ -119,21 +119,15 @@ async fn an_export_that_would_eat_the_disk_reserve_is_refused() {
 /// Opens `dir` keeping a neighbour graph, or not, once no other handle
 /// holds it.
 fn open_graph(dir: &std::path::Path, neighbour_graph: bool) -> Store {
-    let deadline = std::time::Instant::now() + std::time::Duration::from_secs(5);
-    loop {
-        let options = StoreOptions {
+    open_retrying(
+        dir,
+        StoreOptions {
             snapshot_every: 0,
             queue_capacity: 16,
             neighbour_graph,
             ..StoreOptions::default()
-        };
-        match Store::open_with(dir, options, humem_core::observe::unobserved()) {
-            Err(StoreError::Open { .. }) if std::time::Instant::now() < deadline => {
-                std::thread::sleep(std::time::Duration::from_millis(20))
-            }
-            opened => return opened.unwrap(),
-        }
-    }
+        },
+    )
 }
 
 /// Restores `file` into a new directory, once no handle holds it.
@@ -212,18 +206,25 @@ async fn an_export_carries_the_neighbour_graph_to_the_restored_store() {
     assert!(!graph_file::path(other.path()).exists());
 }
 
-#[tokio::test]
-async fn an_export_without_a_graph_restores_into_a_store_that_builds_one() {
-    let dir = tempfile::tempdir().unwrap();
-    let store = open_graph(dir.path(), false);
+/// A store of 12 keyframes in `dir`, keeping a neighbour graph or not,
+/// exported to `dir/export.bin`.
+async fn exported_twelve(dir: &std::path::Path, neighbour_graph: bool) -> std::path::PathBuf {
+    let store = open_graph(dir, neighbour_graph);
     store
         .apply(Mutation::Insert(
             (0..12).map(|i| kf("r", "s", i, 0)).collect(),
         ))
         .await
         .unwrap();
-    let file = dir.path().join("export.bin");
+    let file = dir.join("export.bin");
     store.export(&file).await.unwrap();
+    file
+}
+
+#[tokio::test]
+async fn an_export_without_a_graph_restores_into_a_store_that_builds_one() {
+    let dir = tempfile::tempdir().unwrap();
+    let file = exported_twelve(dir.path(), false).await;
     let target = restored_from(&file);
     assert!(!graph_file::restored_path(target.path()).exists());
     let restored = open_graph(target.path(), true);
@@ -234,15 +235,7 @@ async fn an_export_without_a_graph_restores_into_a_store_that_builds_one() {
 #[tokio::test]
 async fn a_graph_section_cut_short_is_refused() {
     let dir = tempfile::tempdir().unwrap();
-    let store = open_graph(dir.path(), true);
-    store
-        .apply(Mutation::Insert(
-            (0..12).map(|i| kf("r", "s", i, 0)).collect(),
-        ))
-        .await
-        .unwrap();
-    let file = dir.path().join("export.bin");
-    store.export(&file).await.unwrap();
+    let file = exported_twelve(dir.path(), true).await;
     let bytes = std::fs::read(&file).unwrap();
     let cut = dir.path().join("cut.bin");
     std::fs::write(&cut, &bytes[..bytes.len() - 10]).unwrap();

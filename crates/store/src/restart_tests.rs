@@ -2,7 +2,7 @@
 //! index rebuilt from the tree, after every kind of change, and a snapshot
 //! that does not fit the store is never used.
 
-use super::tests::{kf, open_when_free, session};
+use super::tests::{kf, open_retrying, open_when_free, session};
 use super::*;
 use humem_core::keyframe::Pose;
 use std::time::{Duration, Instant};
@@ -25,20 +25,6 @@ fn open_manual_with(dir: &Path, descriptors_to_file_from: Option<usize>) -> Stor
             ..StoreOptions::default()
         },
     )
-}
-
-/// Opens `dir` with `options`, waiting up to 5 s for the last handle of
-/// it to let go.
-fn open_retrying(dir: &Path, options: StoreOptions) -> Store {
-    let deadline = Instant::now() + Duration::from_secs(5);
-    loop {
-        match Store::open_with(dir, options.clone(), humem_core::observe::unobserved()) {
-            Err(StoreError::Open { .. }) if Instant::now() < deadline => {
-                std::thread::sleep(Duration::from_millis(20))
-            }
-            result => return result.unwrap(),
-        }
-    }
 }
 
 /// Every keyframe of the store, in key order, with its predecessor's key:

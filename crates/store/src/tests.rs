@@ -51,6 +51,20 @@ pub(crate) fn open_when_free(dir: &std::path::Path, dim: usize) -> Result<Store,
     }
 }
 
+/// Opens `dir` with `options`, waiting up to 5 s for the last handle of
+/// it to let go.
+pub(crate) fn open_retrying(dir: &std::path::Path, options: StoreOptions) -> Store {
+    let deadline = std::time::Instant::now() + std::time::Duration::from_secs(5);
+    loop {
+        match Store::open_with(dir, options.clone(), humem_core::observe::unobserved()) {
+            Err(StoreError::Open { .. }) if std::time::Instant::now() < deadline => {
+                std::thread::sleep(std::time::Duration::from_millis(20))
+            }
+            result => return result.unwrap(),
+        }
+    }
+}
+
 fn reopen(dir: &std::path::Path, dim: usize) -> Store {
     open_when_free(dir, dim).unwrap()
 }
