@@ -615,6 +615,8 @@ class NeighbourGraphStats:
     memory_bytes: int
     loaded: bool
     approximate_from: int
+    #: Of ``keyframes``, those still waiting to enter the graph (scored exactly meanwhile).
+    waiting: int = 0
 
 
 @dataclass(frozen=True)

@@ -175,13 +175,19 @@ fn a_robots_own_map_is_a_partition_and_the_whole_fleet_is_not() {
         .is_none());
 }
 
-/// The index of `rows`, keeping a neighbour graph when `graph`.
-fn index_of(rows: Vec<StoredRow>, graph: bool) -> Index {
+/// The index of `rows`, keeping a neighbour graph when `graph` is given:
+/// the last `graph` rows stored wait to enter it (as the store's writer
+/// leaves the newest keyframes until it adds them).
+fn index_of(rows: Vec<StoredRow>, graph: Option<usize>) -> Index {
     let mut index = Index::new(6);
-    if graph {
+    if graph.is_some() {
         index.keep_neighbour_graph(None).unwrap();
     }
-    for (robot, session, map, id, descriptor, scene) in rows {
+    let deferred_from = rows.len().saturating_sub(graph.unwrap_or(0));
+    for (i, (robot, session, map, id, descriptor, scene)) in rows.into_iter().enumerate() {
+        if graph.is_some() && i == deferred_from {
+            index.defer_graph_inserts();
+        }
         let features = Features {
             descriptor,
             scene,
@@ -207,9 +213,10 @@ proptest! {
         readable in prop::option::of(prop::collection::vec(robot_name(), 0..4)),
         history in prop::collection::vec((unit_vector(6), scene_strategy()), 1..4),
         k in 1usize..12,
+        waiting in 0usize..8,
     ) {
-        let mut with_graph = index_of(rows.clone(), true);
-        let mut without = index_of(rows.clone(), false);
+        let mut with_graph = index_of(rows.clone(), Some(waiting));
+        let mut without = index_of(rows.clone(), None);
         // Erasures move rows: the graph's keys must follow them.
         for r in removed {
             if let Some((robot, session, _, id, _, _)) = rows.get(r) {
@@ -222,7 +229,6 @@ proptest! {
                 without.remove(&key);
             }
         }
-        prop_assert_eq!(with_graph.neighbour_graph().unwrap().len(), with_graph.len() - with_graph.neighbour_graph_missing());
         let (robot, session, keyframe_id, frame_id, map_id, min_frame_gap) = query;
         let context = QueryContext {
             session: SessionKey {
@@ -271,6 +277,10 @@ proptest! {
         assert_same_bits(&scal_scan(&approximate, &query, &with_graph, &filter.clone().exact()), &reference)?;
         let exact = VprParams { exact: true, ..approximate.clone() };
         assert_same_bits(&scal_scan(&exact, &query, &with_graph, &filter), &reference)?;
+        // Once the waiting rows are added, the graph holds every row.
+        drop(filter);
+        with_graph.flush_graph_inserts();
+        prop_assert_eq!(with_graph.neighbour_graph().unwrap().len(), with_graph.len() - with_graph.neighbour_graph_missing());
     }
 }
 
@@ -368,34 +378,59 @@ fn a_deferred_batch_enters_the_graph_with_its_erasures_and_replacements() {
         };
         keyframe((id % 3) as usize, 0, 0, id, features)
     };
-    for id in 0..50 {
+    for id in 0..290 {
         index.upsert(stored(id, &mut noise));
     }
     index.defer_graph_inserts();
-    for id in 50..300 {
+    for id in 290..300 {
         index.upsert(stored(id, &mut noise));
     }
+    assert_eq!(index.neighbour_graph_waiting(), 10);
     // Erased while waiting, replaced while waiting, erased after entering.
     let key = |id: u64| KeyframeKey {
         robot_id: ROBOTS[(id % 3) as usize].into(),
         session_id: SESSIONS[0].into(),
         keyframe_id: id,
     };
-    for id in [60, 70, 10] {
+    for id in [292, 270, 10] {
         index.remove(&key(id));
     }
     let replacement = stored(80, &mut noise);
     let replaced_descriptor = replacement.features.descriptor.clone();
     index.upsert(replacement);
-    assert!(
-        index
-            .nearest_rows(&replaced_descriptor, 1, &|_| true)
-            .unwrap()[0]
-            != index.row_of(&key(80)).unwrap()
-    );
+    // Waiting rows are proposed, once each, after the graph's own.
+    let row_80 = index.row_of(&key(80)).unwrap();
+    let row_290 = index.row_of(&key(290)).unwrap();
+    let proposed = index
+        .nearest_rows(&replaced_descriptor, 1, &|_| true)
+        .unwrap();
+    // The graph's one, then 9 waiting and 80 (unless the graph's was 80).
+    assert!((10..=11).contains(&proposed.len()), "{proposed:?}");
+    assert!(proposed.contains(&row_80) && proposed.contains(&row_290));
+    let mut unique = proposed.clone();
+    unique.sort_unstable();
+    unique.dedup();
+    assert_eq!(unique.len(), proposed.len());
+    // The filter applies to waiting rows too.
+    let proposed = index
+        .nearest_rows(&replaced_descriptor, 1, &|row| row != row_290)
+        .unwrap();
+    assert!(!proposed.contains(&row_290));
+    // Added in two batches under a shared borrow, crossed off after each.
+    let first = index.add_waiting_to_graph(5);
+    assert_eq!(first.taken(), 5);
+    index.graph_added(first);
+    assert_eq!(index.neighbour_graph_waiting(), 6);
     index.flush_graph_inserts();
+    assert_eq!(index.neighbour_graph_waiting(), 0);
     assert_eq!(index.neighbour_graph().unwrap().len(), 297);
     assert_eq!(index.neighbour_graph_missing(), 0);
+    assert_eq!(
+        index
+            .nearest_rows(&replaced_descriptor, 1, &|_| true)
+            .unwrap(),
+        vec![row_80]
+    );
     // The graph is built in parallel, so its walk may miss a row now and
     // then: nearly every stored row finds itself.
     let found = (0..index.len())
@@ -409,4 +444,27 @@ fn a_deferred_batch_enters_the_graph_with_its_erasures_and_replacements() {
         "{found} of {}",
         index.len()
     );
+}
+
+#[test]
+fn a_graph_mostly_waiting_leaves_queries_to_a_full_pass() {
+    use crate::synthetic::{place_descriptor, Rng};
+    let dim = 16;
+    let mut noise = Rng::new(9);
+    let mut index = Index::new(dim);
+    index.defer_graph_inserts();
+    index.keep_neighbour_graph(None).unwrap();
+    for id in 0..200 {
+        let features = Features {
+            descriptor: place_descriptor(dim, id, &mut noise),
+            ..Features::default()
+        };
+        index.upsert(keyframe((id % 3) as usize, 0, 0, id, features));
+    }
+    // Every row waits: the graph is not asked.
+    assert_eq!(index.neighbour_graph_waiting(), 200);
+    let query = index.descriptor(7).to_vec();
+    assert!(index.nearest_rows(&query, 5, &|_| true).is_none());
+    index.flush_graph_inserts();
+    assert_eq!(index.nearest_rows(&query, 1, &|_| true).unwrap(), vec![7]);
 }

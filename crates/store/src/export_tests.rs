@@ -179,6 +179,7 @@ async fn an_export_carries_the_neighbour_graph_to_the_restored_store() {
     let restored = open_graph(target.path(), true);
     assert_eq!(restored.opened().graph, Some(GraphSource::Loaded));
     assert!(!graph_file::restored_path(target.path()).exists());
+    assert!(restored.wait_for_neighbour_graph(std::time::Duration::from_secs(60)));
     let index = restored.index();
     assert_eq!(index.len(), 39);
     assert_eq!(index.neighbour_graph().unwrap().len(), 39);
@@ -194,6 +195,7 @@ async fn an_export_carries_the_neighbour_graph_to_the_restored_store() {
     // own snapshot (or a build) provides it from then on.
     let again = open_graph(target.path(), true);
     assert!(again.opened().graph.is_some());
+    assert!(again.wait_for_neighbour_graph(std::time::Duration::from_secs(60)));
     assert_eq!(again.index().neighbour_graph().unwrap().len(), 39);
     drop(again);
 
@@ -229,6 +231,7 @@ async fn an_export_without_a_graph_restores_into_a_store_that_builds_one() {
     assert!(!graph_file::restored_path(target.path()).exists());
     let restored = open_graph(target.path(), true);
     assert_eq!(restored.opened().graph, Some(GraphSource::Built));
+    assert!(restored.wait_for_neighbour_graph(std::time::Duration::from_secs(60)));
     assert_eq!(restored.index().neighbour_graph().unwrap().len(), 12);
 }
 

@@ -6,10 +6,12 @@
 //! and renamed into place before the snapshot is, so the graph on disk is
 //! never older than the snapshot it is loaded with. At open it is attached
 //! to the snapshot's index *before* the journal is replayed, so the replay
-//! updates it like any other change; rows the graph lacks are added, and
-//! keys it holds that the index does not are never proposed. A graph that
-//! is missing, of another descriptor length or unreadable is rebuilt from
-//! the rows, with a warning.
+//! updates it like any other change; rows the graph lacks (the replayed
+//! keyframes) wait to enter it, and the writer adds them after the open
+//! while queries score them exactly, so a restart does not wait for them.
+//! Keys the graph holds that the index does not are never proposed. A
+//! graph that is missing, of another descriptor length or unreadable is
+//! rebuilt from the rows the same way, with a warning.
 //!
 //! A store restored from an export ([`crate::export`]) gets the graph the
 //! export carried as [`restored_path`]: in step with the restored records,
@@ -41,7 +43,7 @@ pub enum GraphSource {
     /// Read from the file saved with the snapshot, or carried by the
     /// export the store was restored from.
     Loaded,
-    /// Built from the rows (no usable file).
+    /// Built from the rows (no usable file), in the background.
     Built,
 }
 
@@ -57,24 +59,22 @@ pub(crate) struct UnpublishedGraph {
 
 /// Writes the index's neighbour graph, if it keeps one, to a temporary
 /// file in `dir`, under the index's read lock (changes wait for it:
-/// about a second a million keyframes). A failure is logged and the old
+/// about a second a million keyframes). Keyframes still waiting to enter
+/// the graph are not in the file; the open that loads it adds them. A failure is logged and the old
 /// file removed, so that the next open rebuilds the graph rather than load
 /// one older than the snapshot.
 pub(crate) fn save(dir: &Path, index: &RwLock<Index>) -> Option<UnpublishedGraph> {
     let temp = temp_path(dir);
     let started = Instant::now();
-    let saved = {
-        let index = index.read();
-        let Some(graph) = index.neighbour_graph() else {
+    let saved = index.read().save_neighbour_graph(&temp);
+    match saved {
+        Ok(None) => {
             // A graph left from when one was kept would be older than
             // this snapshot: the next open that wants one builds it.
             let _ = std::fs::remove_file(path(dir));
-            return None;
-        };
-        graph.save(&temp).map(|()| graph.len())
-    };
-    match saved {
-        Ok(rows) => {
+            None
+        }
+        Ok(Some(rows)) => {
             tracing::debug!(
                 rows,
                 ms = started.elapsed().as_millis() as u64,
@@ -104,9 +104,13 @@ impl UnpublishedGraph {
 }
 
 /// Starts `index` keeping a neighbour graph: the one saved in `dir` where
-/// it can be read, else one built from the rows (on every core). None
-/// where no graph could be kept.
+/// it can be read, else an empty one. None where no graph could be kept.
+/// Either way the rows the graph lacks wait to enter it, and from now on
+/// so does every keyframe stored ([`Index::defer_graph_inserts`]): the
+/// writer adds them in the background, so the open does not wait for
+/// them (a million keyframes take more than ten minutes on two cores).
 pub(crate) fn attach(dir: &Path, index: &mut Index) -> Option<GraphSource> {
+    index.defer_graph_inserts();
     let started = Instant::now();
     let file = path(dir);
     let saved = if file.exists() && index.dim() > 0 {
@@ -127,9 +131,10 @@ pub(crate) fn attach(dir: &Path, index: &mut Index) -> Option<GraphSource> {
     }
     tracing::info!(
         keyframes = index.len(),
+        waiting = index.neighbour_graph_waiting(),
         loaded,
         seconds = started.elapsed().as_secs_f64(),
-        "neighbour graph ready"
+        "neighbour graph attached"
     );
     Some(if loaded {
         GraphSource::Loaded
@@ -158,9 +163,8 @@ pub(crate) fn discard_restored(dir: &Path) {
 /// Writes the index's neighbour graph, if it keeps one, to `file` under
 /// its read lock, for an export. Whether one was written.
 pub(crate) fn save_for_export(file: &Path, index: &RwLock<Index>) -> Result<bool, GraphError> {
-    let index = index.read();
-    match index.neighbour_graph() {
-        Some(graph) => graph.save(file).map(|()| true),
-        None => Ok(false),
-    }
+    index
+        .read()
+        .save_neighbour_graph(file)
+        .map(|rows| rows.is_some())
 }

@@ -173,6 +173,23 @@ impl Store {
         self.index.read()
     }
 
+    /// Waits until no stored keyframe waits to enter the neighbour graph
+    /// (after an open, the writer adds those the saved graph lacks in the
+    /// background; queries score them exactly meanwhile), or until
+    /// `timeout`; whether none waits.
+    pub fn wait_for_neighbour_graph(&self, timeout: std::time::Duration) -> bool {
+        let deadline = std::time::Instant::now() + timeout;
+        loop {
+            if self.index.read().neighbour_graph_waiting() == 0 {
+                return true;
+            }
+            if std::time::Instant::now() >= deadline {
+                return false;
+            }
+            std::thread::sleep(std::time::Duration::from_millis(5));
+        }
+    }
+
     /// The index handle itself, for blocking tasks that outlive a borrow.
     pub fn index_handle(&self) -> Arc<RwLock<Index>> {
         self.index.clone()

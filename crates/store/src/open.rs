@@ -339,8 +339,8 @@ const NO_SNAPSHOT: &str = "no snapshot";
 
 /// The snapshot's index plus the journal's changes since; or why it cannot
 /// be used.
-/// With `neighbour_graph`, the graph is attached before the replay, which
-/// then updates it.
+/// With `neighbour_graph`, the graph is attached before the replay, whose
+/// keyframes then wait to enter it (the writer adds them after the open).
 #[allow(clippy::too_many_arguments)]
 fn from_snapshot(
     placement: &DescriptorPlacement,
@@ -376,8 +376,6 @@ fn from_snapshot(
         None
     };
     let pending = journal::pending(journal_tree, header.sequence)?;
-    // The replayed keyframes enter the graph together, on every core.
-    index.defer_graph_inserts();
     for key in &pending.keys {
         match keyframes.get(key)? {
             Some(value) => {
@@ -397,7 +395,6 @@ fn from_snapshot(
             }
         }
     }
-    index.flush_graph_inserts();
     let expected = pending.keyframes.unwrap_or(header.rows as u64);
     if index.len() as u64 != expected {
         return Ok(Err(format!(

@@ -524,11 +524,20 @@ fn open_with_graph(dir: &Path) -> Store {
     )
 }
 
-/// The graph's nearest keyframe to `descriptor`, by key.
+/// The nearest keyframe to `descriptor` among those the graph proposes
+/// (its own and those waiting to enter it), scored exactly as a query
+/// scores them, by key.
 fn nearest_key(store: &Store, descriptor: &[f32]) -> Option<KeyframeKey> {
     let index = store.index();
     let rows = index.nearest_rows(descriptor, 1, &|_| true)?;
-    rows.first().map(|&row| index.meta(row).key.clone())
+    let score = |row: usize| -> f32 {
+        let stored = index.descriptor(row);
+        stored.iter().zip(descriptor).map(|(a, b)| a * b).sum()
+    };
+    let best = rows
+        .into_iter()
+        .max_by(|&a, &b| score(a).total_cmp(&score(b)))?;
+    Some(index.meta(best).key.clone())
 }
 
 #[tokio::test]
@@ -548,6 +557,7 @@ async fn the_neighbour_graph_is_saved_with_the_snapshot_and_replayed_changes_rea
                 .collect(),
         )
         .await;
+        assert!(store.wait_for_neighbour_graph(std::time::Duration::from_secs(60)));
         assert_eq!(store.index().neighbour_graph().unwrap().len(), 30);
         store.snapshot().unwrap();
         assert!(graph_file::path(dir.path()).exists());
@@ -564,6 +574,12 @@ async fn the_neighbour_graph_is_saved_with_the_snapshot_and_replayed_changes_rea
     }
     let store = open_with_graph(dir.path());
     assert_eq!(store.opened().source, IndexSource::Snapshot { replayed: 2 });
+    // Found at once, whether it has entered the graph yet or waits.
+    assert_eq!(
+        nearest_key(&store, &[0.0, 0.0, 1.0]),
+        Some(session("a", "s").keyframe(5))
+    );
+    assert!(store.wait_for_neighbour_graph(std::time::Duration::from_secs(60)));
     let index = store.index();
     let graph = index.neighbour_graph().expect("a graph after the restart");
     assert_eq!(graph.len(), 29);
@@ -590,6 +606,7 @@ async fn a_store_without_a_saved_graph_builds_one_at_open() {
     }
     assert!(!graph_file::path(dir.path()).exists());
     let store = open_with_graph(dir.path());
+    assert!(store.wait_for_neighbour_graph(std::time::Duration::from_secs(60)));
     assert_eq!(store.index().neighbour_graph().unwrap().len(), 25);
 }
 
@@ -610,5 +627,6 @@ async fn a_snapshot_without_a_graph_removes_the_one_an_earlier_open_saved() {
     // It would lack the keyframe stored meanwhile.
     assert!(!graph_file::path(dir.path()).exists());
     let store = open_with_graph(dir.path());
+    assert!(store.wait_for_neighbour_graph(std::time::Duration::from_secs(60)));
     assert_eq!(store.index().neighbour_graph().unwrap().len(), 11);
 }

@@ -322,6 +322,7 @@ impl PlaceRecognition for PlaceRecognitionService {
                         } else {
                             params.approximate_from as u64
                         },
+                        waiting: index.neighbour_graph_waiting() as u64,
                     }
                 });
             let point = index.operating_point(self.pipeline.params(), unix_now());

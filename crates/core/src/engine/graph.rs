@@ -40,8 +40,12 @@ pub const EXPANSION_ADD: usize = 128;
 /// asks for more results than that.
 pub const EXPANSION_SEARCH: usize = 64;
 
-/// Concurrent searches the graph keeps scratch space for; more wait.
-const SEARCH_THREADS: usize = 64;
+/// Concurrent searches and adds the graph keeps scratch space for: the
+/// writer adds on every core while queries search.
+fn threads() -> usize {
+    let cores = std::thread::available_parallelism().map_or(1, |n| n.get());
+    64.max(4 * cores)
+}
 
 /// Why the graph could not do what was asked.
 #[derive(Debug, thiserror::Error)]
@@ -96,7 +100,7 @@ impl NeighbourGraph {
     pub fn new(dim: usize) -> Result<Self, GraphError> {
         let graph = Hnsw::new(&options(dim)).map_err(native)?;
         graph
-            .reserve_capacity_and_threads(1024, SEARCH_THREADS)
+            .reserve_capacity_and_threads(1024, threads())
             .map_err(native)?;
         Ok(NeighbourGraph { graph, dim })
     }
@@ -134,10 +138,16 @@ impl NeighbourGraph {
             // Doubling keeps the growth amortised, as a Vec's.
             let capacity = wanted.max(2 * self.graph.capacity());
             self.graph
-                .reserve_capacity_and_threads(capacity, SEARCH_THREADS)
+                .reserve_capacity_and_threads(capacity, threads())
                 .map_err(native)?;
         }
         Ok(())
+    }
+
+    /// Whether `more` rows beyond those stored need a
+    /// [`NeighbourGraph::reserve`] first.
+    pub fn reserve_would_grow(&self, more: usize) -> bool {
+        self.len() + more > self.graph.capacity()
     }
 
     /// Stores `row` under `key`, replacing what `key` held.

@@ -12,8 +12,20 @@
 //! The graph is kept only where it was asked for
 //! ([`Index::keep_neighbour_graph`]): a small store is scanned exactly and
 //! would pay for it on every insert for nothing.
+//!
+//! Adding a row to the graph costs about a millisecond of one core at
+//! 1280 values, far more than storing it. The store therefore defers it
+//! ([`Index::defer_graph_inserts`]): a stored keyframe waits in a list
+//! that every search scores exactly, so it is found from the moment it is
+//! stored, and the store's writer adds the waiting rows under a shared
+//! borrow ([`Index::add_waiting_to_graph`]), while queries go on, then
+//! crosses them off under its exclusive one ([`Index::graph_added`]). The
+//! same list lets a restart serve at once: rows the saved graph lacks
+//! wait there instead of holding up the open.
 
-use std::collections::HashMap;
+use std::collections::{HashMap, HashSet};
+use std::path::Path;
+use std::sync::Mutex;
 
 use rayon::prelude::*;
 
@@ -44,10 +56,12 @@ pub fn graph_key(key: &KeyframeKey) -> u64 {
 impl Index {
     /// Keeps a neighbour graph over the stored descriptors from now on,
     /// building it from the rows stored (on every core) unless `saved` is
-    /// given: a graph saved with [`Index::neighbour_graph`] earlier, which
-    /// is brought up to date (rows it lacks are added; keys it holds that
-    /// the index does not are never proposed). Nothing to do if a graph is
-    /// kept already, or while the descriptor length is unknown (the first
+    /// given: a graph saved with [`Index::save_neighbour_graph`] earlier,
+    /// which is brought up to date (rows it lacks are added; keys it holds
+    /// that the index does not are never proposed). Where inserts are
+    /// deferred ([`Index::defer_graph_inserts`]), the rows to add wait
+    /// instead of being added now. Nothing to do if a graph is kept
+    /// already, or while the descriptor length is unknown (the first
     /// insert then starts one).
     pub fn keep_neighbour_graph(
         &mut self,
@@ -77,27 +91,38 @@ impl Index {
                 continue;
             }
             if !graph.contains(key) {
-                absent.push((key, row));
+                absent.push(key);
             }
         }
+        // Room for every row now: adds under a shared borrow cannot grow it.
         graph.reserve(absent.len())?;
-        let refused = absent
-            .par_iter()
-            .filter(|&&(key, row)| graph.add_shared(key, &self.matrix.row(row)).is_err())
-            .count();
         self.neighbours = Some(Neighbours {
             graph,
             rows,
-            missing: missing + refused,
-            pending: None,
+            missing,
+            waiting: absent,
+            adding: Mutex::new(()),
         });
+        if !self.graph_deferred {
+            self.flush_graph_inserts();
+        }
         Ok(())
     }
 
-    /// The neighbour graph, if one is kept (to save it, or to read its
-    /// size).
+    /// The neighbour graph, if one is kept (to read its size).
     pub fn neighbour_graph(&self) -> Option<&NeighbourGraph> {
         self.neighbours.as_ref().map(|n| &n.graph)
+    }
+
+    /// Writes the neighbour graph, if one is kept, to `path`; the rows it
+    /// holds, or None without a graph. Rows still waiting to enter it are
+    /// not in the file: whoever loads it adds them again.
+    pub fn save_neighbour_graph(&self, path: &Path) -> Result<Option<usize>, GraphError> {
+        let Some(n) = self.neighbours.as_ref() else {
+            return Ok(None);
+        };
+        let _no_adds = n.adding.lock().unwrap_or_else(|e| e.into_inner());
+        n.graph.save(path).map(|()| Some(n.graph.len()))
     }
 
     /// Stored keyframes the neighbour graph lacks (a key hash shared with
@@ -107,9 +132,20 @@ impl Index {
         self.neighbours.as_ref().map_or(0, |n| n.missing)
     }
 
+    /// Keyframe entries waiting to enter the neighbour graph (see
+    /// [`Index::defer_graph_inserts`]); searches score them exactly
+    /// meanwhile.
+    pub fn neighbour_graph_waiting(&self) -> usize {
+        self.neighbours.as_ref().map_or(0, |n| n.waiting.len())
+    }
+
     /// The rows of up to `count` stored keyframes nearest to `query` by
-    /// their descriptors among those `keep` accepts, nearest first; None
-    /// without a graph.
+    /// their descriptors among those `keep` accepts, nearest first, then
+    /// every row `keep` accepts that waits to enter the graph, for the
+    /// caller to score exactly. None without a graph, or while more than
+    /// a sixteenth of the rows wait (after a restart that found no graph,
+    /// or while inserts come faster than the graph takes them), where a
+    /// full pass over the codes costs little more.
     pub fn nearest_rows(
         &self,
         query: &[f32],
@@ -117,16 +153,26 @@ impl Index {
         keep: &(dyn Fn(usize) -> bool + Sync),
     ) -> Option<Vec<usize>> {
         let neighbours = self.neighbours.as_ref()?;
+        if neighbours.waiting.len() > self.rows.len() / 16 + count {
+            return None;
+        }
         let row = |key: u64| neighbours.rows.get(&key).map(|&r| r as usize);
         let keys = neighbours
             .graph
             .search(query, count, |key| row(key).is_some_and(keep))
             .ok()?;
-        Some(keys.into_iter().filter_map(row).collect())
+        let mut found: Vec<usize> = keys.into_iter().filter_map(row).collect();
+        if !neighbours.waiting.is_empty() {
+            let mut seen: HashSet<usize> = found.iter().copied().collect();
+            let waiting = neighbours.waiting.iter().filter_map(|&key| row(key));
+            found.extend(waiting.filter(|&r| keep(r) && seen.insert(r)));
+        }
+        Some(found)
     }
 
-    /// Puts the keyframe of `row`, just stored, into the graph (starting
-    /// one if it was asked for before the descriptor length was known).
+    /// Puts the keyframe of `row`, just stored, into the graph, or into
+    /// its waiting list where inserts are deferred (starting a graph if
+    /// one was asked for before the descriptor length was known).
     pub(super) fn graph_insert(&mut self, row: usize) {
         if self.neighbours.is_none() {
             if self.graph_wanted {
@@ -138,6 +184,7 @@ impl Index {
         }
         let key = graph_key(&self.rows[row].key);
         let descriptor = self.matrix.row(row);
+        let deferred = self.graph_deferred;
         let Some(n) = self.neighbours.as_mut() else {
             return;
         };
@@ -147,9 +194,12 @@ impl Index {
                 return;
             }
         }
-        if let Some(pending) = n.pending.as_mut() {
+        if deferred {
             n.rows.insert(key, row as u32);
-            pending.push(key);
+            n.waiting.push(key);
+            // Grows by doubling, so that adds under a shared borrow find
+            // room; one that fails here fails again at the add.
+            let _ = n.graph.reserve(n.waiting.len());
             return;
         }
         if n.graph.add(key, &descriptor).is_ok() {
@@ -159,48 +209,61 @@ impl Index {
         }
     }
 
-    /// From now until [`Index::flush_graph_inserts`], keyframes stored
-    /// wait to enter the neighbour graph, so that a batch of them enters
-    /// it on every core at once (an insert costs about a millisecond of
-    /// one core at 1280 values). Their table entries are kept meanwhile,
-    /// so erasures and moves in between are followed; a search before the
-    /// flush does not find them.
+    /// From now on, a keyframe stored waits to enter the neighbour graph
+    /// until [`Index::add_waiting_to_graph`] (or
+    /// [`Index::flush_graph_inserts`]) adds it; searches score the waiting
+    /// rows exactly, so each is found from the moment it is stored. The
+    /// store defers inserts so that they cost neither its writes nor its
+    /// restarts their latency.
     pub fn defer_graph_inserts(&mut self) {
-        if let Some(n) = self.neighbours.as_mut() {
-            n.pending.get_or_insert_with(Vec::new);
-        }
+        self.graph_deferred = true;
     }
 
-    /// Adds the keyframes stored since [`Index::defer_graph_inserts`] to
-    /// the neighbour graph, in parallel, and adds each from now on as it
-    /// is stored.
+    /// Adds every waiting keyframe to the neighbour graph now, on every
+    /// core.
     pub fn flush_graph_inserts(&mut self) {
-        let Index {
-            neighbours, matrix, ..
-        } = self;
-        let Some(n) = neighbours.as_mut() else {
-            return;
+        let added = self.add_waiting_to_graph(usize::MAX);
+        self.graph_added(added);
+    }
+
+    /// Adds up to `limit` of the keyframes waiting to enter the neighbour
+    /// graph, oldest first and on every core, under a shared borrow, so
+    /// that queries go on meanwhile; [`Index::graph_added`] must follow
+    /// before the index is changed otherwise, to cross them off.
+    pub fn add_waiting_to_graph(&self, limit: usize) -> GraphAdditions {
+        let Some(n) = self.neighbours.as_ref() else {
+            return GraphAdditions::default();
         };
-        let Some(mut keys) = n.pending.take() else {
-            return;
-        };
-        keys.sort_unstable();
-        keys.dedup();
-        // A key erased since has left the table: it is not added.
-        let work: Vec<(u64, usize)> = keys
-            .into_iter()
-            .filter_map(|key| n.rows.get(&key).map(|&row| (key, row as usize)))
+        let _saving = n.adding.lock().unwrap_or_else(|e| e.into_inner());
+        let taken = n.waiting.len().min(limit);
+        let mut work: Vec<(u64, usize)> = n.waiting[..taken]
+            .iter()
+            // A key erased since has left the table: it is not added.
+            .filter_map(|&key| n.rows.get(&key).map(|&row| (key, row as usize)))
             .collect();
+        work.sort_unstable();
+        work.dedup();
         let graph = &n.graph;
-        let failed: Vec<u64> = if graph.reserve(work.len()).is_err() {
+        let failed = if graph.reserve_would_grow(work.len()) {
+            // No room was made (a failed reserve): nothing can be added.
             work.iter().map(|&(key, _)| key).collect()
         } else {
             work.par_iter()
-                .filter(|&&(key, row)| graph.add_shared(key, &matrix.row(row)).is_err())
+                .filter(|&&(key, row)| graph.add_shared(key, &self.matrix.row(row)).is_err())
                 .map(|&(key, _)| key)
                 .collect()
         };
-        for key in failed {
+        GraphAdditions { taken, failed }
+    }
+
+    /// Crosses off the keyframes [`Index::add_waiting_to_graph`] added;
+    /// those the graph refused are left to exact passes.
+    pub fn graph_added(&mut self, added: GraphAdditions) {
+        let Some(n) = self.neighbours.as_mut() else {
+            return;
+        };
+        n.waiting.drain(..added.taken.min(n.waiting.len()));
+        for key in added.failed {
             n.rows.remove(&key);
             n.missing += 1;
         }
@@ -234,5 +297,21 @@ impl Index {
                 _ => {}
             }
         }
+    }
+}
+
+/// What [`Index::add_waiting_to_graph`] did, for [`Index::graph_added`]:
+/// how many waiting entries it took, and the keys the graph refused.
+#[derive(Debug, Default)]
+#[must_use = "the additions must be crossed off with Index::graph_added"]
+pub struct GraphAdditions {
+    taken: usize,
+    failed: Vec<u64>,
+}
+
+impl GraphAdditions {
+    /// Waiting entries taken (added, refused, or no longer stored).
+    pub fn taken(&self) -> usize {
+        self.taken
     }
 }

@@ -121,6 +121,9 @@ pub struct Index {
     /// Whether a neighbour graph was asked for (it starts with the first
     /// descriptor when the length was not known yet).
     pub(super) graph_wanted: bool,
+    /// Whether stored keyframes wait to enter the graph until a caller adds
+    /// them ([`Index::defer_graph_inserts`]) instead of entering it at once.
+    pub(super) graph_deferred: bool,
 }
 
 /// The neighbour graph and the rows its keys name (see `neighbours`).
@@ -132,10 +135,15 @@ pub(super) struct Neighbours {
     /// Keyframes left out of the graph: their key's hash was another's,
     /// or the graph refused them. Only an exact pass finds them.
     pub(super) missing: usize,
-    /// Keys of keyframes stored since [`Index::defer_graph_inserts`],
-    /// added to the graph together by [`Index::flush_graph_inserts`];
-    /// None: each is added as it is stored.
-    pub(super) pending: Option<Vec<u64>>,
+    /// Keys of keyframes in `rows` that wait to enter the graph, oldest
+    /// first (see [`Index::defer_graph_inserts`]); a search scores them
+    /// exactly instead. A key may appear twice (stored again while
+    /// waiting) or name an erased keyframe (then it is no longer in
+    /// `rows` and is skipped).
+    pub(super) waiting: Vec<u64>,
+    /// Held while rows are added to the graph under a shared borrow of
+    /// the index, and while the graph is saved, so the two never overlap.
+    pub(super) adding: Mutex<()>,
 }
 
 /// An operating point and what it was estimated with.
@@ -171,6 +179,7 @@ impl Index {
             changes: 0,
             neighbours: None,
             graph_wanted: false,
+            graph_deferred: false,
         }
     }
 

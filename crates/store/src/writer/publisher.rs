@@ -5,9 +5,13 @@
 //! lock, which every running scan holds for reading: on its own thread
 //! that wait overlaps the writer staging and flushing the next group
 //! instead of adding to every insert's latency. Being the index's only
-//! writer, it also regroups the index's rows by map when that is due.
+//! writer, it also regroups the index's rows by map when that is due, and
+//! adds the keyframes waiting to enter the neighbour graph after the
+//! group's callers are answered (under the read lock, while queries go
+//! on).
 
 use std::sync::atomic::{AtomicU64, Ordering};
+use std::sync::mpsc::TryRecvError;
 use std::sync::Arc;
 
 use humem_core::index::{Index, RowGrouping};
@@ -40,6 +44,11 @@ pub(super) struct Published {
 /// next group while the publisher waits for the index, and blocks when
 /// this many are behind, so memory stays bounded.
 pub(super) const PUBLISH_BACKLOG: usize = 2;
+
+/// Waiting keyframes added to the neighbour graph at a time, on every
+/// core: a few tens of milliseconds at 1280 values, the longest a write
+/// waits behind them.
+const GRAPH_BATCH: usize = 64;
 
 /// The second stage of the writer: takes each flushed group, in order,
 /// into the in-memory index under its write lock, and only then answers
@@ -107,10 +116,43 @@ impl Publisher {
         );
     }
 
+    /// Publishes each group as it comes; between groups, and after each,
+    /// adds keyframes waiting to enter the neighbour graph, a batch at a
+    /// time, so a restart's backlog never holds up a write for long.
     pub(super) fn run(self, groups: std::sync::mpsc::Receiver<Published>) {
-        for group in groups {
-            self.publish(group);
+        loop {
+            let group = if self.index.read().neighbour_graph_waiting() > 0 {
+                match groups.try_recv() {
+                    Ok(group) => Some(group),
+                    Err(TryRecvError::Empty) => None,
+                    Err(TryRecvError::Disconnected) => return,
+                }
+            } else {
+                match groups.recv() {
+                    Ok(group) => Some(group),
+                    Err(_) => return,
+                }
+            };
+            if let Some(group) = group {
+                self.publish(group);
+            }
+            self.add_waiting_to_graph();
         }
+    }
+
+    /// Adds up to [`GRAPH_BATCH`] waiting keyframes to the neighbour graph
+    /// under the index's read lock, while queries go on, and crosses them
+    /// off under the write lock (nothing else changes the index in between:
+    /// this thread is its only writer).
+    fn add_waiting_to_graph(&self) {
+        let added = {
+            let index = self.index.read();
+            if index.neighbour_graph_waiting() == 0 {
+                return;
+            }
+            index.add_waiting_to_graph(GRAPH_BATCH)
+        };
+        self.index.write().graph_added(added);
     }
 
     fn publish(&self, group: Published) {
@@ -122,9 +164,9 @@ impl Publisher {
         } = group;
         let (store_keyframes, store_verdicts) = {
             let mut index = self.index.write();
-            // The group's keyframes enter the neighbour graph together,
-            // on every core.
-            index.defer_graph_inserts();
+            // The group's keyframes wait to enter the neighbour graph
+            // (searches score them exactly meanwhile), so that its callers
+            // are answered before they enter it.
             for change in changes {
                 match change {
                     IndexChange::Upsert(kf) => {
@@ -141,7 +183,6 @@ impl Publisher {
                     }
                 }
             }
-            index.flush_graph_inserts();
             self.placement.apply(&mut index);
             self.applied.store(sequence, Ordering::Release);
             (index.len() as u64, index.verdicts().len() as u64)
