@@ -372,9 +372,14 @@ async fn shut_down(store: &Store, replica: Option<&Replica>) -> anyhow::Result<(
     Ok(())
 }
 
-/// Refuses a descriptor model whose length is not the store's (`dim`, 0:
-/// not fixed yet), where the graph fixes it: every image insert would be
-/// refused. The models' own graph checks ran as they loaded.
+/// Checks the descriptor model's length against the store's (`dim`, 0:
+/// not fixed yet), where the graph fixes it. Against `store.descriptor_dim`
+/// a mismatch is a configuration error and refuses the start. Against the
+/// length the stored keyframes fixed it is only a warning: a running
+/// server takes keyframes with precomputed descriptors of any length into
+/// an empty store, and its restart must take the store it wrote; inserts
+/// with images are then refused one by one, as they were before the
+/// restart. The models' own graph checks ran as they loaded.
 fn descriptor_fits_store(
     perception: &Perception,
     config: &Config,
@@ -383,7 +388,8 @@ fn descriptor_fits_store(
     let (Some(len), true) = (perception.descriptor_len(), dim > 0) else {
         return Ok(());
     };
-    let source = if config.store.descriptor_dim > 0 {
+    let configured = config.store.descriptor_dim > 0;
+    let source = if configured {
         "store.descriptor_dim".to_string()
     } else {
         format!(
@@ -393,14 +399,24 @@ fn descriptor_fits_store(
     };
     let expected = [humem_perception::check::Expected { len: dim, source }];
     let m = &config.perception.descriptor;
-    humem_perception::check::graph::lengths_fit(
+    let fits = humem_perception::check::graph::lengths_fit(
         "perception.descriptor",
         &m.output,
         len,
         &format!("[N, {len}] in {}", m.model.display()),
         &expected,
     )
-    .context("checking the perception models against the store (humem models check says more)")
+    .context("checking the perception models against the store (humem models check says more)");
+    match fits {
+        Err(e) if !configured => {
+            tracing::warn!(
+                "{e:#}: keyframes with precomputed {dim}-value descriptors are taken, \
+                 keyframes with images are refused"
+            );
+            Ok(())
+        }
+        other => other,
+    }
 }
 
 /// Refuses to serve beyond this machine without TLS and credentials,

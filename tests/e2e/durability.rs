@@ -90,3 +90,34 @@ async fn a_clean_restart_keeps_everything_and_exits_zero() {
     assert_eq!(after.maps, before.maps);
     assert_eq!(after.format_version, 3);
 }
+
+/// A server with its descriptor model takes keyframes with precomputed
+/// descriptors of another length into an empty store (the Python
+/// quickstart sends 256 values to the default 1280-value model): started
+/// again, it takes the store it wrote instead of refusing to start.
+#[tokio::test(flavor = "multi_thread")]
+async fn a_restart_takes_the_precomputed_descriptors_the_server_accepted() {
+    let dir = tempfile::tempdir().unwrap();
+    let server = Server::start_with_models(dir.path());
+    let mut world = World::new(20, 9);
+    let drive = scenes::loop_drive(&mut world, "r", "s", 2, 20, 0);
+    scenes::insert_all(
+        &mut server.client().await,
+        drive.iter().map(|(kf, _)| kf.clone()),
+    )
+    .await;
+    let before = server.stats().await;
+    assert_eq!(
+        (before.keyframes, before.descriptor_dim),
+        (drive.len() as u64, scenes::DIM as u32)
+    );
+    let status = server.terminate();
+    assert!(status.success(), "humem exited with {status}");
+    let server = Server::start_with_models(dir.path());
+    let after = server.stats().await;
+    assert_eq!(
+        (after.keyframes, after.descriptor_dim),
+        (before.keyframes, before.descriptor_dim)
+    );
+    assert_eq!(after.maps, before.maps);
+}
