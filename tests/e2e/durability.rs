@@ -111,9 +111,7 @@ async fn a_restart_takes_the_precomputed_descriptors_the_server_accepted() {
         (before.keyframes, before.descriptor_dim),
         (drive.len() as u64, scenes::DIM as u32)
     );
-    let status = server.terminate();
-    assert!(status.success(), "humem exited with {status}");
-    let server = Server::start_with_models(dir.path());
+    let server = server.restart();
     let after = server.stats().await;
     assert_eq!(
         (after.keyframes, after.descriptor_dim),

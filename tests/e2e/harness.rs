@@ -56,6 +56,8 @@ pub struct Server {
     /// Address of the Prometheus endpoint.
     pub metrics: String,
     pub data_dir: PathBuf,
+    /// The extra arguments and settings it was started with.
+    extra: Vec<String>,
 }
 
 impl Server {
@@ -118,6 +120,7 @@ impl Server {
             url: format!("http://{addr}"),
             metrics,
             data_dir: data_dir.to_path_buf(),
+            extra: extra.iter().map(|a| a.to_string()).collect(),
         }
     }
 
@@ -201,12 +204,15 @@ impl Server {
         panic!("humem did not stop within 30 s of SIGTERM");
     }
 
-    /// Stops this server and starts another on the same data directory.
+    /// Stops this server and starts another on the same data directory,
+    /// with the same arguments and settings.
     pub fn restart(self) -> Server {
         let dir = self.data_dir.clone();
+        let extra = self.extra.clone();
         let status = self.terminate();
         assert!(status.success(), "humem exited with {status}");
-        Server::start(&dir)
+        let extra: Vec<&str> = extra.iter().map(String::as_str).collect();
+        Server::start_with(&dir, &extra)
     }
 }
 

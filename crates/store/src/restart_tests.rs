@@ -530,10 +530,7 @@ fn open_with_graph(dir: &Path) -> Store {
 fn nearest_key(store: &Store, descriptor: &[f32]) -> Option<KeyframeKey> {
     let index = store.index();
     let rows = index.nearest_rows(descriptor, 1, &|_| true)?;
-    let score = |row: usize| -> f32 {
-        let stored = index.descriptor(row);
-        stored.iter().zip(descriptor).map(|(a, b)| a * b).sum()
-    };
+    let score = |row: usize| humem_core::engine::matrix::dot(&index.descriptor(row), descriptor);
     let best = rows
         .into_iter()
         .max_by(|&a, &b| score(a).total_cmp(&score(b)))?;

@@ -183,7 +183,6 @@ impl Index {
             return;
         }
         let key = graph_key(&self.rows[row].key);
-        let descriptor = self.matrix.row(row);
         let deferred = self.graph_deferred;
         let Some(n) = self.neighbours.as_mut() else {
             return;
@@ -202,7 +201,8 @@ impl Index {
             let _ = n.graph.reserve(n.waiting.len());
             return;
         }
-        if n.graph.add(key, &descriptor).is_ok() {
+        // Read only here: out of memory, a row read is a system call.
+        if n.graph.add(key, &self.matrix.row(row)).is_ok() {
             n.rows.insert(key, row as u32);
         } else {
             n.missing += 1;
