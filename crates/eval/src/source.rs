@@ -15,7 +15,8 @@ use humem_recording::{Format, KeyframeRule, Options};
 /// How a recording is read (`humem eval --source`, `humem ingest`).
 #[derive(Debug, Clone, clap::Args)]
 pub struct SourceArgs {
-    /// A recording: a ROS 2 bag (a .mcap file or a rosbag2 folder), a ROS 1
+    /// A recording: a ROS 2 bag (a .mcap or .db3 file, or a rosbag2
+    /// folder), a ROS 1
     /// .bag, a TUM RGB-D, EuRoC/ASL or KITTI odometry folder, or a HuMem
     /// data set folder.
     #[arg(long, value_name = "PATH")]
@@ -25,10 +26,13 @@ pub struct SourceArgs {
     #[arg(long)]
     pub image_topic: Option<String>,
     /// Bags: the pose topic (nav_msgs/Odometry or
-    /// geometry_msgs/PoseStamped); default: the only one.
+    /// geometry_msgs/PoseStamped); default: the only one. An odometry of
+    /// the body is moved to the camera by the mounting on /tf_static.
     #[arg(long)]
     pub pose_topic: Option<String>,
-    /// Bags: poses from /tf, the transform PARENT -> CHILD (a direct edge).
+    /// Bags: poses from /tf and /tf_static, the pose of CHILD in PARENT
+    /// (e.g. map,camera_optical), composed through the tree at each image's
+    /// time.
     #[arg(long, value_name = "PARENT,CHILD")]
     pub tf_frames: Option<String>,
     /// Largest time between an image and the poses it gets, seconds
@@ -134,13 +138,18 @@ impl SourceArgs {
         let summary = humem_recording::extract(source, &options, &folder)
             .with_context(|| format!("reading the recording {}", source.display()))?;
         eprintln!(
-            "humem: {} keyframes of {} images from {} (poses: {}; {} images had no pose within {} s){}",
+            "humem: {} keyframes of {} images from {} (poses: {}; {} images had no pose within {} s{}){}",
             summary.keyframes,
             summary.images,
             summary.image_source,
             summary.pose_source,
             summary.without_pose,
             options.pose_tolerance,
+            summary
+                .calibration_source
+                .as_ref()
+                .map(|c| format!("; intrinsics: {c}"))
+                .unwrap_or_default(),
             self.keep_frames
                 .as_ref()
                 .map(|d| format!(", kept in {}", d.display()))

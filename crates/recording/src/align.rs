@@ -87,10 +87,7 @@ pub fn pose_at(poses: &[TimedPose], time: f64, tolerance: f64) -> Option<Pose> {
     match (prev.filter(near), next.filter(near)) {
         (Some(a), Some(b)) if b.time > a.time => {
             let s = (time - a.time) / (b.time - a.time);
-            Some(Pose {
-                t: a.pose.t.lerp(&b.pose.t, s),
-                r: a.pose.r.slerp(&b.pose.r, s),
-            })
+            Some(a.pose.interpolate(&b.pose, s))
         }
         (_, Some(b)) if b.time == time => Some(b.pose),
         (Some(a), Some(b)) => Some(if time - a.time <= b.time - time {

@@ -1,33 +1,29 @@
-//! ROS bags without ROS: ROS 2 bags in MCAP (a `.mcap` file or a rosbag2
-//! folder of them) through the `mcap` crate's streaming reader, ROS 1
-//! `.bag` files through the `rosbag` crate.
+//! ROS bags without ROS: ROS 2 bags (MCAP or SQLite) and ROS 1 `.bag`
+//! files, whose messages [`crate::bag_storage`] streams.
 //!
-//! Both readers hand each message (topic, type, log time, bytes) to the
-//! same code, which reads a bag twice: first the poses and every image's
-//! time (only the image headers are decoded), then, once the keyframes
-//! are chosen, only the keyframes' images. A bag many times the memory
-//! is read in two streams and never held whole.
+//! A bag is read twice: first the poses, the TF tree, the camera's
+//! intrinsics and every image's time and frame (only the image headers
+//! are decoded), then, once the keyframes are chosen, only the keyframes'
+//! images. A bag many times the memory is read in two streams and never
+//! held whole.
+//!
+//! Poses are the camera's, as the folder form holds them: the pose of
+//! `--tf-frames PARENT,CHILD` composed through the TF tree at each image's
+//! time ([`crate::tf_tree`]), or a pose topic's, moved from the body it
+//! tracks (an odometry's `child_frame_id`) to the images' frame by the
+//! camera's mounting on `/tf_static` when the bag holds one.
 
 use std::collections::{BTreeMap, HashMap};
-use std::io::Read;
-use std::path::{Path, PathBuf};
+use std::path::Path;
 
 use crate::align::{plan, sort_poses, Plan};
+use crate::bag_storage::for_each_message;
 use crate::error::RecordingError;
 use crate::extraction::{Format, Options, Summary};
-use crate::messages::{self, Dialect, RawImage};
+use crate::messages::{self, CameraInfo, Dialect, RawImage};
 use crate::output::{FrameImage, LoopFolder};
 use crate::pose::TimedPose;
-
-/// One message of a bag.
-struct BagMessage<'a> {
-    topic: &'a str,
-    /// The type without `/msg/`: `sensor_msgs/Image`.
-    datatype: &'a str,
-    /// Seconds.
-    log_time: f64,
-    data: &'a [u8],
-}
+use crate::tf_tree::TfTree;
 
 /// The message types read.
 const IMAGE: &str = "sensor_msgs/Image";
@@ -35,211 +31,7 @@ const COMPRESSED: &str = "sensor_msgs/CompressedImage";
 const ODOMETRY: &str = "nav_msgs/Odometry";
 const POSE_STAMPED: &str = "geometry_msgs/PoseStamped";
 const TF: &str = "tf2_msgs/TFMessage";
-
-/// `sensor_msgs/msg/Image` → `sensor_msgs/Image`.
-fn ros1_name(datatype: &str) -> String {
-    datatype.replacen("/msg/", "/", 1)
-}
-
-/// Calls `f` on every message of the bag at `path`, in file order.
-fn for_each_message(
-    path: &Path,
-    format: Format,
-    f: &mut dyn FnMut(BagMessage) -> Result<(), RecordingError>,
-) -> Result<(), RecordingError> {
-    match format {
-        Format::Ros1Bag => ros1_messages(path, f),
-        _ => {
-            for file in mcap_files(path)? {
-                mcap_messages(&file, f)?;
-            }
-            Ok(())
-        }
-    }
-}
-
-/// The MCAP files of a bag: the file itself, or a rosbag2 folder's
-/// `.mcap` files in name order (a split bag).
-fn mcap_files(path: &Path) -> Result<Vec<PathBuf>, RecordingError> {
-    if path.is_file() {
-        return Ok(vec![path.to_path_buf()]);
-    }
-    let mut files = Vec::new();
-    let mut sqlite = false;
-    for entry in std::fs::read_dir(path).map_err(RecordingError::io(path))? {
-        let entry = entry.map_err(RecordingError::io(path))?.path();
-        match entry.extension().and_then(|e| e.to_str()) {
-            Some("mcap") => files.push(entry),
-            Some("db3") => sqlite = true,
-            _ => {}
-        }
-    }
-    files.sort();
-    if files.is_empty() {
-        return Err(RecordingError::UnknownFormat {
-            path: path.to_path_buf(),
-            reason: if sqlite {
-                "a rosbag2 folder in SQLite storage (.db3); HuMem reads MCAP, \
-                 the default since ROS 2 Iron: `ros2 bag convert` makes one"
-                    .into()
-            } else {
-                "a rosbag2 folder without .mcap files".into()
-            },
-        });
-    }
-    Ok(files)
-}
-
-fn mcap_messages(
-    path: &Path,
-    f: &mut dyn FnMut(BagMessage) -> Result<(), RecordingError>,
-) -> Result<(), RecordingError> {
-    use mcap::records::Record;
-    use mcap::sans_io::linear_reader::{LinearReadEvent, LinearReader};
-    let damaged = |reason: String| RecordingError::Damaged {
-        path: path.to_path_buf(),
-        reason,
-    };
-    let mut file = std::fs::File::open(path).map_err(RecordingError::io(path))?;
-    let mut reader = LinearReader::new();
-    let mut schemas: HashMap<u16, String> = HashMap::new();
-    let mut channels: HashMap<u16, (String, String, String)> = HashMap::new();
-    while let Some(event) = reader.next_event() {
-        match event.map_err(|e| damaged(e.to_string()))? {
-            LinearReadEvent::ReadRequest(need) => {
-                let read = file
-                    .read(reader.insert(need))
-                    .map_err(RecordingError::io(path))?;
-                reader.notify_read(read);
-            }
-            LinearReadEvent::Record { opcode, data } => {
-                match mcap::parse_record(opcode, data).map_err(|e| damaged(e.to_string()))? {
-                    Record::Schema { header, .. } => {
-                        schemas.insert(header.id, ros1_name(&header.name));
-                    }
-                    Record::Channel(channel) => {
-                        let datatype = schemas.get(&channel.schema_id).cloned().unwrap_or_default();
-                        channels.insert(
-                            channel.id,
-                            (channel.topic, datatype, channel.message_encoding),
-                        );
-                    }
-                    Record::Message { header, data } => {
-                        let Some((topic, datatype, encoding)) = channels.get(&header.channel_id)
-                        else {
-                            return Err(damaged(format!(
-                                "a message on channel {} that no channel record announced",
-                                header.channel_id
-                            )));
-                        };
-                        if encoding != "cdr" {
-                            continue;
-                        }
-                        f(BagMessage {
-                            topic,
-                            datatype,
-                            log_time: header.log_time as f64 * 1e-9,
-                            data: &data,
-                        })?;
-                    }
-                    _ => {}
-                }
-            }
-        }
-    }
-    Ok(())
-}
-
-fn ros1_messages(
-    path: &Path,
-    f: &mut dyn FnMut(BagMessage) -> Result<(), RecordingError>,
-) -> Result<(), RecordingError> {
-    use rosbag::{ChunkRecord, MessageRecord, RosBag};
-    let damaged = |reason: String| RecordingError::Damaged {
-        path: path.to_path_buf(),
-        reason,
-    };
-    check_ros1_index(path)?;
-    let bag = RosBag::new(path).map_err(|e| damaged(e.to_string()))?;
-    let mut connections: HashMap<u32, (String, String)> = HashMap::new();
-    for record in bag.chunk_records() {
-        let ChunkRecord::Chunk(chunk) = record.map_err(|e| damaged(e.to_string()))? else {
-            continue;
-        };
-        for message in chunk.messages() {
-            match message.map_err(|e| damaged(e.to_string()))? {
-                MessageRecord::Connection(c) => {
-                    connections.insert(c.id, (c.topic.to_string(), c.tp.to_string()));
-                }
-                MessageRecord::MessageData(m) => {
-                    let Some((topic, datatype)) = connections.get(&m.conn_id) else {
-                        return Err(damaged(format!(
-                            "a message on connection {} that no connection record announced",
-                            m.conn_id
-                        )));
-                    };
-                    // Bag time: seconds in the low 32 bits, nanoseconds above.
-                    let log_time = (m.time & 0xffff_ffff) as f64 + (m.time >> 32) as f64 * 1e-9;
-                    f(BagMessage {
-                        topic,
-                        datatype,
-                        log_time,
-                        data: m.data,
-                    })?;
-                }
-            }
-        }
-    }
-    Ok(())
-}
-
-/// Checks that a ROS 1 bag's index lies within the file: a bag cut short
-/// (a copy interrupted, a recorder killed) has lost it, and the `rosbag`
-/// crate would index past the end of its mapping.
-fn check_ros1_index(path: &Path) -> Result<(), RecordingError> {
-    let damaged = |reason: &str| RecordingError::Damaged {
-        path: path.to_path_buf(),
-        reason: reason.to_string(),
-    };
-    let mut file = std::fs::File::open(path).map_err(RecordingError::io(path))?;
-    let len = file.metadata().map_err(RecordingError::io(path))?.len();
-    let mut head = vec![0u8; 4096.min(len as usize)];
-    file.read_exact(&mut head)
-        .map_err(RecordingError::io(path))?;
-    const MAGIC: &[u8] = b"#ROSBAG V2.0\n";
-    let Some(rest) = head.strip_prefix(MAGIC) else {
-        return Err(damaged("not a ROS 1 bag (no #ROSBAG V2.0 line)"));
-    };
-    // The bag header record: its header's length, then `len name=value`
-    // fields; `index_pos` is where the index starts.
-    let u32_at = |b: &[u8], at: usize| {
-        b.get(at..at + 4)
-            .map(|v| u32::from_le_bytes(v.try_into().expect("4")) as usize)
-    };
-    let header_len = u32_at(rest, 0).ok_or_else(|| damaged("cut inside its header"))?;
-    let header = rest
-        .get(4..4 + header_len)
-        .ok_or_else(|| damaged("cut inside its header"))?;
-    let mut at = 0;
-    while let Some(field_len) = u32_at(header, at) {
-        let field = header
-            .get(at + 4..at + 4 + field_len)
-            .ok_or_else(|| damaged("a bad header field"))?;
-        if let Some(value) = field.strip_prefix(b"index_pos=") {
-            let index_pos =
-                u64::from_le_bytes(value.try_into().map_err(|_| damaged("a bad index_pos"))?);
-            if index_pos == 0 || index_pos >= len {
-                return Err(damaged(&format!(
-                    "truncated or never closed: its index starts at byte {index_pos} of {len} \
-                     (`rosbag reindex` can rebuild it)"
-                )));
-            }
-            return Ok(());
-        }
-        at += 4 + field_len;
-    }
-    Err(damaged("its header has no index_pos"))
-}
+const CAMERA_INFO: &str = "sensor_msgs/CameraInfo";
 
 /// What the first pass found.
 #[derive(Default)]
@@ -248,10 +40,26 @@ struct Survey {
     topics: BTreeMap<String, (String, usize)>,
     /// Image topic → image times, in message order.
     image_times: HashMap<String, Vec<f64>>,
+    /// Image topic → the frame of its first image (the camera's).
+    image_frames: HashMap<String, String>,
     /// Pose topic → poses.
     poses: HashMap<String, Vec<TimedPose>>,
-    /// Poses of the asked transform from `/tf` and `/tf_static`.
-    tf_poses: Vec<TimedPose>,
+    /// Odometry topic → the frame its poses are of (the body's).
+    pose_bodies: HashMap<String, String>,
+    /// CameraInfo topic → its first message.
+    camera_infos: BTreeMap<String, CameraInfo>,
+    /// Every transform on `/tf` and `/tf_static`.
+    tf: TfTree,
+}
+
+/// Where the keyframes come from, as the first pass decided.
+struct Sources {
+    image_topic: String,
+    /// Where the poses came from, for the summary.
+    pose_source: String,
+    poses: Vec<TimedPose>,
+    /// The camera's intrinsics and the topic they came from.
+    camera: Option<(String, CameraInfo)>,
 }
 
 impl Survey {
@@ -294,14 +102,11 @@ impl Survey {
         }
     }
 
-    /// The image topic, and where the poses come from with the poses
-    /// themselves (taken out of the survey): the asked transform of `/tf`,
-    /// else the pose topic. Errors list the bag's topics.
-    fn sources(
-        &mut self,
-        path: &Path,
-        options: &Options,
-    ) -> Result<(String, String, Vec<TimedPose>), RecordingError> {
+    /// The image topic, the poses (the asked chain of `/tf`, else the pose
+    /// topic's, moved from the body to the camera where the tree holds the
+    /// camera's mounting) and the camera's intrinsics. Errors list the
+    /// bag's topics.
+    fn sources(&mut self, path: &Path, options: &Options) -> Result<Sources, RecordingError> {
         let topic_error = |survey: &Survey, reason: String| RecordingError::Topic {
             path: path.to_path_buf(),
             reason,
@@ -316,14 +121,28 @@ impl Survey {
                 "no image topic",
             )
             .map_err(|reason| topic_error(self, reason))?;
+        let camera = self.camera_info_for(&image_topic);
         if let Some((parent, child)) = &options.tf_frames {
-            if self.tf_poses.is_empty() {
-                return Err(topic_error(self, format!(
-                    "no transform from {parent} to {child} on /tf or /tf_static (only direct edges of the tree are read)"
-                )));
-            }
-            let poses = std::mem::take(&mut self.tf_poses);
-            return Ok((image_topic, format!("/tf {parent} -> {child}"), poses));
+            let chain = self.tf.chain(parent, child).map_err(|reason| {
+                topic_error(self, format!("--tf-frames {parent},{child}: {reason}"))
+            })?;
+            let poses = self
+                .image_times
+                .get(&image_topic)
+                .into_iter()
+                .flatten()
+                .filter_map(|&time| {
+                    chain
+                        .pose_at(time, options.pose_tolerance)
+                        .map(|pose| TimedPose { time, pose })
+                })
+                .collect();
+            return Ok(Sources {
+                pose_source: format!("/tf {}", chain.describe()),
+                image_topic,
+                poses,
+                camera,
+            });
         }
         let topic = self
             .choose(
@@ -335,8 +154,77 @@ impl Survey {
                  for poses on /tf name the frames with --tf-frames",
             )
             .map_err(|reason| topic_error(self, reason))?;
-        let poses = self.poses.remove(&topic).unwrap_or_default();
-        Ok((image_topic, topic, poses))
+        let mut poses = self.poses.remove(&topic).unwrap_or_default();
+        let mut pose_source = topic.clone();
+        let body = self.pose_bodies.get(&topic).filter(|b| !b.is_empty());
+        let lens = self
+            .image_frames
+            .get(&image_topic)
+            .filter(|c| !c.is_empty());
+        if let (Some(body), Some(lens)) = (body, lens) {
+            if body.trim_start_matches('/') != lens.trim_start_matches('/') {
+                match self.tf.chain(body, lens) {
+                    Ok(mounting) => {
+                        sort_poses(&mut poses);
+                        poses = poses
+                            .into_iter()
+                            .filter_map(|p| {
+                                let m = mounting.pose_at(p.time, options.pose_tolerance)?;
+                                Some(TimedPose {
+                                    time: p.time,
+                                    pose: p.pose.compose(&m),
+                                })
+                            })
+                            .collect();
+                        pose_source = format!(
+                            "{topic}, moved to the camera by {} from {}",
+                            mounting.describe(),
+                            if mounting.is_static() {
+                                "/tf_static"
+                            } else {
+                                "/tf"
+                            }
+                        );
+                    }
+                    Err(reason) => {
+                        pose_source = format!(
+                            "{topic}: the pose of {body}, not of the camera's frame {lens} ({reason})"
+                        );
+                    }
+                }
+            }
+        }
+        Ok(Sources {
+            image_topic,
+            pose_source,
+            poses,
+            camera,
+        })
+    }
+
+    /// The `sensor_msgs/CameraInfo` of the camera behind `image_topic`:
+    /// the bag's only one, else the one whose topic shares the most of the
+    /// image topic's namespace and whose frame is the images' (when one
+    /// alone does).
+    fn camera_info_for(&self, image_topic: &str) -> Option<(String, CameraInfo)> {
+        let frame = self.image_frames.get(image_topic);
+        let shared = |topic: &str| {
+            topic
+                .split('/')
+                .zip(image_topic.split('/'))
+                .take_while(|(a, b)| a == b)
+                .count()
+        };
+        let score = |(topic, info): (&String, &CameraInfo)| {
+            (shared(topic), Some(&info.header.frame_id) == frame)
+        };
+        let best = self.camera_infos.iter().map(score).max()?;
+        let mut chosen = self.camera_infos.iter().filter(|c| score(*c) == best);
+        let (topic, info) = chosen.next()?;
+        chosen
+            .next()
+            .is_none()
+            .then(|| (topic.clone(), info.clone()))
     }
 
     fn of_types(&self, types: &[&str]) -> Vec<&String> {
@@ -369,23 +257,27 @@ pub fn extract(
         Format::Ros1Bag => Dialect::Ros1,
         _ => Dialect::Cdr,
     };
-    let mut survey = survey(path, format, dialect, options)?;
-    let (image_topic, pose_source, mut poses) = survey.sources(path, options)?;
-    sort_poses(&mut poses);
-    let times = survey.image_times.remove(&image_topic).unwrap_or_default();
+    let mut survey = survey(path, format, dialect)?;
+    let mut sources = survey.sources(path, options)?;
+    sort_poses(&mut sources.poses);
+    let times = survey
+        .image_times
+        .remove(&sources.image_topic)
+        .unwrap_or_default();
     let plan = plan(
         &times,
-        &poses,
+        &sources.poses,
         options.pose_tolerance,
         &options.keyframes,
-        &image_topic,
-        &pose_source,
+        &sources.image_topic,
+        &sources.pose_source,
     )?;
-    let keyframes = write_keyframes(path, format, dialect, &image_topic, &plan, out)?;
+    let keyframes = write_keyframes(path, format, dialect, &sources, &plan, out)?;
     Ok(Summary {
         format,
-        image_source: image_topic,
-        pose_source,
+        image_source: sources.image_topic,
+        pose_source: sources.pose_source,
+        calibration_source: sources.camera.map(|(topic, _)| topic),
         images: plan.images,
         without_pose: plan.without_pose,
         keyframes,
@@ -403,14 +295,10 @@ fn message_error(path: &Path, topic: &str, index: usize, reason: String) -> Reco
     }
 }
 
-/// Pass 1: every topic with its type and count, the image times, the
-/// poses of every pose topic and of the asked transform.
-fn survey(
-    path: &Path,
-    format: Format,
-    dialect: Dialect,
-    options: &Options,
-) -> Result<Survey, RecordingError> {
+/// Pass 1: every topic with its type and count, the image times and
+/// frames, the poses of every pose topic, the camera intrinsics and the
+/// TF tree.
+fn survey(path: &Path, format: Format, dialect: Dialect) -> Result<Survey, RecordingError> {
     let mut survey = Survey::default();
     for_each_message(path, format, &mut |m| {
         let entry = survey
@@ -425,12 +313,20 @@ fn survey(
         match m.datatype {
             IMAGE | COMPRESSED => {
                 // The header leads both types.
-                let header = messages::header_stamp(m.data, dialect).map_err(bad)?;
+                let header = messages::header(m.data, dialect).map_err(bad)?;
                 survey
                     .image_times
                     .entry(m.topic.to_string())
                     .or_default()
-                    .push(stamp(header, m.log_time));
+                    .push(stamp(header.stamp, m.log_time));
+                survey
+                    .image_frames
+                    .entry(m.topic.to_string())
+                    .or_insert(header.frame_id);
+            }
+            CAMERA_INFO if !survey.camera_infos.contains_key(m.topic) => {
+                let info = messages::camera_info(m.data, dialect).map_err(bad)?;
+                survey.camera_infos.insert(m.topic.to_string(), info);
             }
             ODOMETRY | POSE_STAMPED => {
                 let p = if m.datatype == ODOMETRY {
@@ -447,27 +343,30 @@ fn survey(
                         time: stamp(p.header.stamp, m.log_time),
                         pose: p.pose,
                     });
+                if m.datatype == ODOMETRY {
+                    survey
+                        .pose_bodies
+                        .entry(m.topic.to_string())
+                        .or_insert(p.child_frame_id);
+                }
             }
             TF => {
-                if let Some((parent, child)) = &options.tf_frames {
-                    for t in messages::tf_message(m.data, dialect).map_err(bad)? {
-                        if t.header.frame_id.trim_start_matches('/')
-                            == parent.trim_start_matches('/')
-                            && t.child_frame_id.trim_start_matches('/')
-                                == child.trim_start_matches('/')
-                        {
-                            survey.tf_poses.push(TimedPose {
-                                time: stamp(t.header.stamp, m.log_time),
-                                pose: t.pose,
-                            });
-                        }
-                    }
+                let is_static = m.topic.ends_with("tf_static");
+                for t in messages::tf_message(m.data, dialect).map_err(bad)? {
+                    survey.tf.add(
+                        &t.header.frame_id,
+                        &t.child_frame_id,
+                        stamp(t.header.stamp, m.log_time),
+                        t.pose,
+                        is_static,
+                    );
                 }
             }
             _ => {}
         }
         Ok(())
     })?;
+    survey.tf.sort();
     Ok(survey)
 }
 
@@ -477,10 +376,11 @@ fn write_keyframes(
     path: &Path,
     format: Format,
     dialect: Dialect,
-    image_topic: &str,
+    sources: &Sources,
     plan: &Plan,
     out: &Path,
 ) -> Result<usize, RecordingError> {
+    let image_topic = sources.image_topic.as_str();
     let wanted: HashMap<usize, usize> = plan
         .keyframes
         .iter()
@@ -488,6 +388,9 @@ fn write_keyframes(
         .map(|(k, &(index, _, _))| (index, k))
         .collect();
     let mut folder = LoopFolder::create(out)?;
+    if let Some((topic, info)) = &sources.camera {
+        folder.set_calibration(info, &format!("{topic} in {}", path.display()));
+    }
     let mut waiting: HashMap<usize, FrameImage> = HashMap::new();
     let mut index = 0;
     for_each_message(path, format, &mut |m| {

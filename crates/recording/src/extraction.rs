@@ -12,6 +12,8 @@ use crate::align::KeyframeRule;
 pub enum Format {
     /// A ROS 2 bag in MCAP: a `.mcap` file, or a rosbag2 folder of them.
     Ros2Mcap,
+    /// A ROS 2 bag in SQLite: a `.db3` file, or a rosbag2 folder of them.
+    Ros2Sqlite,
     /// A ROS 1 `.bag` file.
     Ros1Bag,
     /// TUM RGB-D: `rgb.txt` and `groundtruth.txt`.
@@ -28,6 +30,7 @@ impl std::fmt::Display for Format {
     fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
         f.write_str(match self {
             Format::Ros2Mcap => "ROS 2 bag (MCAP)",
+            Format::Ros2Sqlite => "ROS 2 bag (SQLite)",
             Format::Ros1Bag => "ROS 1 bag",
             Format::Tum => "TUM RGB-D",
             Format::Euroc => "EuRoC/ASL",
@@ -46,8 +49,8 @@ pub struct Options {
     /// Bags: the pose topic (`nav_msgs/Odometry` or
     /// `geometry_msgs/PoseStamped`); by default the only one.
     pub pose_topic: Option<String>,
-    /// Bags: take poses from `/tf` and `/tf_static`, the transform from
-    /// the first frame to the second (a direct edge of the tree).
+    /// Bags: take poses from `/tf` and `/tf_static`, the pose of the
+    /// second frame in the first, composed through the tree.
     pub tf_frames: Option<(String, String)>,
     /// Largest time between an image and the poses it is given, seconds.
     pub pose_tolerance: f64,
@@ -83,6 +86,9 @@ pub struct Summary {
     pub image_source: String,
     /// Where the poses came from.
     pub pose_source: String,
+    /// Where the camera's intrinsics came from (`sequence_calib.json`),
+    /// where the recording holds them.
+    pub calibration_source: Option<String>,
     /// Images read.
     pub images: usize,
     /// Images left out because no pose lay within the tolerance.

@@ -65,6 +65,7 @@ pub fn extract(
         format,
         image_source: listing.image_source,
         pose_source: listing.pose_source,
+        calibration_source: None,
         images: plan.images,
         without_pose: plan.without_pose,
         keyframes,

@@ -2,7 +2,7 @@
 //! into the keyframes and poses HuMem's evaluation and ingestion read.
 //!
 //! A team trying HuMem starts from what it already has: a ROS 2 bag in
-//! MCAP, a ROS 1 `.bag`, or a data set in the TUM RGB-D, EuRoC/ASL or KITTI
+//! MCAP or SQLite, a ROS 1 `.bag`, or a data set in the TUM RGB-D, EuRoC/ASL or KITTI
 //! odometry layout. Each is read without ROS ([`bag`], [`layouts`]) into
 //! the same two streams, images and poses with their times; [`align`]
 //! gives each image the pose at its time (interpolated between the poses
@@ -24,12 +24,14 @@
 
 pub mod align;
 pub mod bag;
+mod bag_storage;
 pub mod error;
 pub mod extraction;
 pub mod layouts;
 pub mod messages;
 pub mod output;
 pub mod pose;
+pub mod tf_tree;
 
 use std::path::Path;
 
@@ -47,8 +49,9 @@ pub fn detect(path: &Path) -> Result<Format, RecordingError> {
     if path.is_file() {
         return match path.extension().and_then(|e| e.to_str()) {
             Some("mcap") => Ok(Format::Ros2Mcap),
+            Some("db3") => Ok(Format::Ros2Sqlite),
             Some("bag") => Ok(Format::Ros1Bag),
-            _ => Err(unknown("a file must be a .mcap or a .bag")),
+            _ => Err(unknown("a file must be a .mcap, a .db3 or a .bag")),
         };
     }
     if !path.is_dir() {
@@ -61,7 +64,7 @@ pub fn detect(path: &Path) -> Result<Format, RecordingError> {
     if has("sequence") || (has("query") && has("reference")) {
         Ok(Format::Folder)
     } else if has("metadata.yaml") {
-        Ok(Format::Ros2Mcap)
+        bag_storage::rosbag2_format(path)
     } else if has("rgb.txt") {
         Ok(Format::Tum)
     } else if has("mav0") || (has("cam0") && has("state_groundtruth_estimate0")) {
@@ -82,7 +85,9 @@ pub fn detect(path: &Path) -> Result<Format, RecordingError> {
 pub fn extract(source: &Path, options: &Options, out: &Path) -> Result<Summary, RecordingError> {
     let format = detect(source)?;
     match format {
-        Format::Ros2Mcap | Format::Ros1Bag => bag::extract(source, format, options, out),
+        Format::Ros2Mcap | Format::Ros2Sqlite | Format::Ros1Bag => {
+            bag::extract(source, format, options, out)
+        }
         Format::Tum | Format::Euroc | Format::Kitti => {
             layouts::extract(source, format, options, out)
         }

@@ -1,7 +1,7 @@
 //! The few ROS messages a recording needs, decoded from their bytes in a
 //! bag: `sensor_msgs/Image`, `sensor_msgs/CompressedImage`,
-//! `nav_msgs/Odometry`, `geometry_msgs/PoseStamped` and
-//! `tf2_msgs/TFMessage`.
+//! `sensor_msgs/CameraInfo`, `nav_msgs/Odometry`,
+//! `geometry_msgs/PoseStamped` and `tf2_msgs/TFMessage`.
 //!
 //! ROS 1 and ROS 2 lay these out almost alike: little-endian numbers,
 //! length-prefixed strings and sequences. ROS 2's CDR aligns every number
@@ -210,10 +210,64 @@ pub struct StampedPose {
     pub pose: Pose,
 }
 
-/// The stamp (seconds) of a message that starts with a `std_msgs/Header`,
-/// reading nothing past it.
-pub fn header_stamp(data: &[u8], dialect: Dialect) -> Result<f64, MessageError> {
-    Ok(Reader::new(data, dialect)?.header()?.stamp)
+/// The header of a message that starts with a `std_msgs/Header`, reading
+/// nothing past it.
+pub fn header(data: &[u8], dialect: Dialect) -> Result<Header, MessageError> {
+    Reader::new(data, dialect)?.header()
+}
+
+/// `sensor_msgs/CameraInfo`: the image size and the intrinsics (the
+/// rectification and projection matrices, binning and region of interest
+/// are read past).
+#[derive(Debug, Clone, PartialEq)]
+pub struct CameraInfo {
+    /// Its header: the camera's optical frame.
+    pub header: Header,
+    /// Rows.
+    pub height: u32,
+    /// Columns.
+    pub width: u32,
+    /// `plumb_bob`, `rational_polynomial`, `equidistant`, or empty.
+    pub distortion_model: String,
+    /// The distortion coefficients (`plumb_bob`: k1, k2, p1, p2, k3).
+    pub d: Vec<f64>,
+    /// The camera matrix, row-major: fx 0 cx / 0 fy cy / 0 0 1.
+    pub k: [f64; 9],
+}
+
+/// Decodes a `sensor_msgs/CameraInfo`.
+pub fn camera_info(data: &[u8], dialect: Dialect) -> Result<CameraInfo, MessageError> {
+    let mut r = Reader::new(data, dialect)?;
+    let header = r.header()?;
+    let height = r.u32()?;
+    let width = r.u32()?;
+    let distortion_model = r.string()?;
+    let n = r.u32()? as usize;
+    let mut d = Vec::with_capacity(n.min(64));
+    for _ in 0..n {
+        d.push(r.f64()?);
+    }
+    let mut k = [0.0; 9];
+    for v in &mut k {
+        *v = r.f64()?;
+    }
+    // R (9), P (12), binning x and y, and the region of interest
+    // (x, y, height, width offsets and do_rectify).
+    for _ in 0..21 {
+        r.f64()?;
+    }
+    for _ in 0..6 {
+        r.u32()?;
+    }
+    r.u8()?;
+    Ok(CameraInfo {
+        header,
+        height,
+        width,
+        distortion_model,
+        d,
+        k,
+    })
 }
 
 /// Decodes a `sensor_msgs/Image`.
@@ -415,6 +469,43 @@ pub(crate) mod tests {
             Reader::new(&[0, 0, 0, 0], Dialect::Cdr),
             Err(MessageError::Encapsulation(0))
         ));
+    }
+
+    #[test]
+    fn a_camera_info_reads_its_size_and_intrinsics() {
+        for dialect in [Dialect::Ros1, Dialect::Cdr] {
+            let mut w = Writer::new(dialect);
+            w.header(5, 0, "camera_optical");
+            w.u32(288);
+            w.u32(512);
+            w.string("plumb_bob");
+            w.u32(5);
+            for v in [0.1, -0.2, 0.0, 0.0, 0.05] {
+                w.f64(v);
+            }
+            for v in [304.0, 0.0, 256.0, 0.0, 304.0, 144.0, 0.0, 0.0, 1.0] {
+                w.f64(v);
+            }
+            for _ in 0..21 {
+                w.f64(1.0);
+            }
+            for _ in 0..6 {
+                w.u32(0);
+            }
+            w.u8(0);
+            let info = camera_info(&w.data, dialect).unwrap();
+            assert_eq!(info.header.frame_id, "camera_optical");
+            assert_eq!((info.width, info.height), (512, 288));
+            assert_eq!(info.distortion_model, "plumb_bob");
+            assert_eq!(info.d, vec![0.1, -0.2, 0.0, 0.0, 0.05]);
+            assert_eq!(
+                (info.k[0], info.k[2], info.k[4], info.k[5]),
+                (304.0, 256.0, 304.0, 144.0)
+            );
+            // One byte short: refused.
+            let short = &w.data[..w.data.len() - 1];
+            assert!(camera_info(short, dialect).is_err());
+        }
     }
 
     #[test]

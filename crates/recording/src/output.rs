@@ -1,6 +1,8 @@
 //! Keyframes written as a `loop` folder: `sequence/NNNNNN.{jpg,png}` in
-//! keyframe order and `sequence_poses.txt` (TUM: time, position,
-//! orientation), the layout `humem eval` reads.
+//! keyframe order, `sequence_poses.txt` (TUM: time, position,
+//! orientation), the layout `humem eval` reads, and where the recording
+//! holds the camera's intrinsics, `sequence_calib.json` (what the
+//! ORB-SLAM3 harness builds its camera settings from).
 //!
 //! The folder is built beside its destination under a temporary name and
 //! renamed into place once every file is written, so a failure half way
@@ -10,6 +12,7 @@ use std::fmt::Write as _;
 use std::path::{Path, PathBuf};
 
 use crate::error::RecordingError;
+use crate::messages::CameraInfo;
 use crate::pose::Pose;
 
 /// A keyframe's image as the source holds it.
@@ -27,6 +30,7 @@ pub struct LoopFolder {
     partial: PathBuf,
     out: PathBuf,
     poses: String,
+    calibration: Option<serde_json::Value>,
     written: usize,
 }
 
@@ -54,6 +58,7 @@ impl LoopFolder {
             partial,
             out: out.to_path_buf(),
             poses: "# timestamp tx ty tz qx qy qz qw  (written by humem from a recording)\n".into(),
+            calibration: None,
             written: 0,
         })
     }
@@ -103,6 +108,40 @@ impl LoopFolder {
         Ok(())
     }
 
+    /// Writes `info` (read from `source`) as the folder's
+    /// `sequence_calib.json` when it is finished.
+    pub fn set_calibration(&mut self, info: &CameraInfo, source: &str) {
+        let k = &info.k;
+        let mut calibration = serde_json::json!({
+            "width": info.width,
+            "height": info.height,
+            "fx": k[0],
+            "fy": k[4],
+            "cx": k[2],
+            "cy": k[5],
+            "model": if info.distortion_model.is_empty() {
+                "pinhole".to_string()
+            } else {
+                format!("pinhole, {}", info.distortion_model)
+            },
+            "camera_frame": info.header.frame_id,
+            "source": source,
+        });
+        if !info.d.is_empty() {
+            let d = |i: usize| info.d.get(i).copied().unwrap_or(0.0);
+            calibration["distortion"] = if matches!(
+                info.distortion_model.as_str(),
+                "plumb_bob" | ""
+            ) && info.d.len() <= 5
+            {
+                serde_json::json!({ "k1": d(0), "k2": d(1), "p1": d(2), "p2": d(3), "k3": d(4) })
+            } else {
+                serde_json::json!({ "coefficients": info.d })
+            };
+        }
+        self.calibration = Some(calibration);
+    }
+
     /// Keyframes pushed so far.
     pub fn len(&self) -> usize {
         self.written
@@ -117,6 +156,11 @@ impl LoopFolder {
     pub fn finish(self) -> Result<usize, RecordingError> {
         let poses = self.partial.join("sequence_poses.txt");
         std::fs::write(&poses, &self.poses).map_err(RecordingError::io(&poses))?;
+        if let Some(calibration) = &self.calibration {
+            let path = self.partial.join("sequence_calib.json");
+            let text = serde_json::to_string_pretty(calibration).expect("a JSON value prints");
+            std::fs::write(&path, text + "\n").map_err(RecordingError::io(&path))?;
+        }
         std::fs::rename(&self.partial, &self.out).map_err(RecordingError::io(&self.out))?;
         Ok(self.written)
     }

@@ -24,3 +24,40 @@ pub struct TimedPose {
     /// The pose then.
     pub pose: Pose,
 }
+
+impl Pose {
+    /// No motion: the frame itself.
+    pub fn identity() -> Pose {
+        Pose {
+            t: Vector3::zeros(),
+            r: UnitQuaternion::identity(),
+        }
+    }
+
+    /// `self ∘ other`: `other` (a frame's pose in this pose's frame) in the
+    /// frame this pose is given in.
+    pub fn compose(&self, other: &Pose) -> Pose {
+        Pose {
+            t: self.t + self.r * other.t,
+            r: self.r * other.r,
+        }
+    }
+
+    /// The pose a fraction `s` of the way from this one to `other`:
+    /// position linearly, orientation by slerp.
+    pub fn interpolate(&self, other: &Pose, s: f64) -> Pose {
+        Pose {
+            t: self.t.lerp(&other.t, s),
+            r: self.r.slerp(&other.r, s),
+        }
+    }
+
+    /// The inverse transform: this frame's parent seen from this frame.
+    pub fn inverse(&self) -> Pose {
+        let r = self.r.inverse();
+        Pose {
+            t: -(r * self.t),
+            r,
+        }
+    }
+}
