@@ -421,7 +421,7 @@ fn descriptor_fits_store(
 
 /// Refuses to serve beyond this machine without TLS and credentials,
 /// unless `server.allow_insecure_network` says so.
-fn check_exposure(config: &Config, credentials: bool) -> anyhow::Result<()> {
+pub fn check_exposure(config: &Config, credentials: bool) -> anyhow::Result<()> {
     check_nats_exposure(config)?;
     let listen = config.server.listen;
     let tls = config.server.tls.enabled();

@@ -7,6 +7,8 @@
 //!   load generator and the store export.
 
 mod cli;
+#[cfg(test)]
+mod docs_examples;
 
 use std::io::IsTerminal;
 

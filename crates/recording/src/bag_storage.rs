@@ -420,7 +420,10 @@ mod tests {
         )
         .unwrap();
         let err = rosbag2_files(dir.path(), "db3").unwrap_err().to_string();
-        assert!(err.contains("lists") && err.contains("drive_1.db3"), "{err}");
+        assert!(
+            err.contains("lists") && err.contains("drive_1.db3"),
+            "{err}"
+        );
     }
 
     #[test]
@@ -443,6 +446,9 @@ mod tests {
         let err = sqlite_messages(&not_sqlite, &mut |_| Ok(()))
             .unwrap_err()
             .to_string();
-        assert!(err.contains("damaged bag") && err.contains("rosbag2 SQLite"), "{err}");
+        assert!(
+            err.contains("damaged bag") && err.contains("rosbag2 SQLite"),
+            "{err}"
+        );
     }
 }
