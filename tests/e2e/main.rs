@@ -13,6 +13,7 @@ mod cli;
 mod cluster;
 mod cpu;
 mod detector;
+mod documented;
 mod durability;
 mod errors;
 mod eval;
