@@ -150,8 +150,12 @@ pub async fn run(args: IngestArgs) -> anyhow::Result<()> {
     bar.finish_and_clear();
     println!("{}", tally.table(&dataset.truth_source, !poses.is_empty()));
     println!(
-        "{} keyframes stored as robot {:?}, session {:?} on {}",
+        "{} keyframes stored as robot {:?}, session {:?} on {}; they stay in its store \
+         (remove them with `humem reset-session --robot {} --session {} --server {}`)",
         dataset.queries.len(),
+        args.robot,
+        session,
+        args.server,
         args.robot,
         session,
         args.server
