@@ -15,6 +15,9 @@ out=${2:-eval-results/shipped}
 [ -d "$datasets" ] || { echo "no data sets at $datasets" >&2; exit 1; }
 
 scripts/setup-models.sh
+# The commit the binary is built from, taken before the build.
+commit=$(git rev-parse --short=12 HEAD)
+git diff --quiet HEAD -- || commit="$commit (with uncommitted changes)"
 cargo build --release --locked --bin humem
 humem=target/release/humem
 mkdir -p "$out"
@@ -26,7 +29,7 @@ run() { # name dataset-dir
     local start=$SECONDS
     "$humem" eval --dataset "$dir" --json "$out/$name.json" --report "$out/$name" >/dev/null
     # The command as a reader would type it, beside the figures.
-    printf '%s\n' "humem eval --dataset ${dir#"$datasets"/}" >"$out/$name.command"
+    printf '%s\n' "humem eval --dataset \$DATASETS/${dir#"$datasets"/}" >"$out/$name.command"
     echo "   $((SECONDS - start)) s"
     runs+=("$out/$name.json")
 }
@@ -39,5 +42,5 @@ for condition in deep_night dense_fog rain_fog sunset_glare; do
     run "town-dev-$condition" "$datasets/town-dev/$condition"
 done
 
-python3 tools/results_page.py --readme README.md --page docs/results.md "${runs[@]}"
+python3 tools/results_page.py --readme README.md --page docs/results.md --commit "$commit" "${runs[@]}"
 echo "== docs/results.md and the README's table written from ${#runs[@]} runs in $out"

@@ -30,6 +30,7 @@ DESCRIPTIONS = {
     "town-dev-rain_fog": ("rendered", "rain and fog"),
     "town-dev-sunset_glare": ("rendered", "low sun"),
 }
+CALIBRATIONS = {"null": "calibrated score (null model)", "raw": "raw score"}
 BEGIN, END = "<!-- results:begin -->", "<!-- results:end -->"
 
 
@@ -63,11 +64,14 @@ def load(paths):
         with open(path) as f:
             report = json.load(f)
         name = os.path.splitext(os.path.basename(path))[0]
+        key = name
         command_file = os.path.splitext(path)[0] + ".command"
         command = open(command_file).read().strip() if os.path.exists(command_file) else ""
         clean = next(c for c in report["conditions"] if c["condition"] == "clean")
         methods = {r["method"]: r for r in clean["results"]}
-        runs.append({"name": name, "report": report, "command": command, "methods": methods})
+        # Shown as the data set's folder (town-dev/loop), from the command.
+        shown = command.rsplit("$DATASETS/", 1)[-1] if "$DATASETS/" in command else name
+        runs.append({"name": shown, "key": key, "report": report, "command": command, "methods": methods})
     return runs
 
 
@@ -94,7 +98,7 @@ def page(runs, when, where, head):
         f"| measured | {when} |",
         f"| machine | {where} |",
         f"| commit | `{head}` |",
-        f"| operating point | {first['calibration']} score, threshold {first['threshold']:.2f}, "
+        f"| operating point | {CALIBRATIONS.get(first['calibration'], first['calibration'])}, threshold {first['threshold']:.2f}, "
         f"at most {first['max_candidates']} candidates (the defaults) |",
         f"| objects | {first['objects']} |",
         "",
@@ -102,13 +106,14 @@ def page(runs, when, where, head):
         "\"wrong\" those of them whose first candidate is not a true place; \"false",
         "alarms\" the answered queries that have no true place at all. ORB-BoW has",
         "no calibrated score and answers every query. Latency is the median of the",
-        "timed queries on this machine, models included for HuMem.",
+        "timed queries on the machine above, the models included for HuMem.",
+        "`$DATASETS` is the folder of development data sets.",
         "",
         "| data set | images | method | R@1 | R@5 | MRR | answered | wrong | false alarms | candidate precision | median ms | command |",
         "| --- | --- | --- | --- | --- | --- | --- | --- | --- | --- | --- | --- |",
     ]
     for run in runs:
-        kind, what = DESCRIPTIONS.get(run["name"], ("", ""))
+        kind, what = DESCRIPTIONS.get(run["key"], ("", ""))
         for method, r in run["methods"].items():
             p = r["precision"]
             without = p["queries"] - p["with_match"]
@@ -122,7 +127,7 @@ def page(runs, when, where, head):
               "| images | data sets | method | mean R@1 | mean R@5 | answered | wrong |",
               "| --- | --- | --- | --- | --- | --- | --- |"]
     for kind in ("real", "rendered"):
-        group = [r for r in runs if DESCRIPTIONS.get(r["name"], ("",))[0] == kind]
+        group = [r for r in runs if DESCRIPTIONS.get(r["key"], ("",))[0] == kind]
         if not group:
             continue
         for method in group[0]["methods"]:
@@ -148,7 +153,7 @@ def readme_table(runs, when, where, head):
     ]
     totals = [0, 0, 0, 0, 0, 0]
     for run in runs:
-        kind, what = DESCRIPTIONS.get(run["name"], ("", ""))
+        kind, what = DESCRIPTIONS.get(run["key"], ("", ""))
         full, orb = run["methods"].get("Full"), run["methods"].get("ORB-BoW")
         if not full or not orb:
             continue
@@ -167,11 +172,12 @@ def main():
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--readme", required=True)
     parser.add_argument("--page", required=True)
+    parser.add_argument("--commit", help="the commit the binary was built from (default: HEAD now)")
     parser.add_argument("runs", nargs="+")
     args = parser.parse_args()
     runs = load(args.runs)
     when = datetime.datetime.now(datetime.timezone.utc).strftime("%Y-%m-%d %H:%M UTC")
-    where, head = machine(), commit()
+    where, head = machine(), args.commit or commit()
     with open(args.page, "w") as f:
         f.write(page(runs, when, where, head))
     text = open(args.readme).read()
