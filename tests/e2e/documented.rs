@@ -51,6 +51,14 @@ fn the_documented_two_replica_cluster_starts_and_replicates() {
     }
     let block = block_after("docs/fleet-and-cluster.md", "**Start it**");
     assert!(block.contains("scripts/run.sh"), "{block}");
+    // The page's fixed ports must be free, or the failure would be another
+    // program's.
+    for port in [4220, 4221, 4222, 6220, 6221, 6222, 9461, 9462, 50051, 50052] {
+        assert!(
+            std::net::TcpListener::bind(("127.0.0.1", port)).is_ok(),
+            "port {port}, which docs/fleet-and-cluster.md uses, is taken on this machine"
+        );
+    }
     let tmp = tempfile::tempdir().unwrap();
     let script = block
         .replace(
@@ -63,25 +71,36 @@ fn the_documented_two_replica_cluster_starts_and_replicates() {
     let tail = || {
         let text = std::fs::read_to_string(&log).unwrap_or_default();
         let lines: Vec<&str> = text.lines().collect();
-        lines[lines.len().saturating_sub(40)..].join("\n")
+        // The servers' own lines, not the NATS servers' chatter.
+        let ours: Vec<&str> = lines
+            .iter()
+            .copied()
+            .filter(|l| !l.contains("] [INF] "))
+            .collect();
+        ours[ours.len().saturating_sub(60)..].join("\n")
     };
     let mut child = Command::new("bash")
         .arg("-c")
         .arg(format!("{script}\nwait"))
         .current_dir(repo_root())
         .env_remove("HUMEM_CONFIG")
-        .env("RUST_LOG", "warn,ort::logging=error")
+        .env(
+            "RUST_LOG",
+            "warn,humem_server=info,humem_cluster=info,ort::logging=error",
+        )
         .env("RUST_BACKTRACE", "0")
         .env("RUST_LIB_BACKTRACE", "0")
-        .stdout(Stdio::null())
-        .stderr(std::fs::File::create(&log).unwrap())
+        .stdout(std::fs::File::create(&log).unwrap())
+        .stderr(std::fs::File::options().append(true).open(&log).unwrap())
         .process_group(0)
         .spawn()
         .unwrap();
     let _group = Group(child.id());
 
-    // Both replicas ready (each has applied the stream as it found it).
-    let deadline = Instant::now() + Duration::from_secs(120);
+    // Both replicas ready (each has applied the stream as it found it);
+    // the replicas load the default models first, slowly on a machine busy
+    // with other tests.
+    let deadline = Instant::now() + Duration::from_secs(300);
     for port in [9461, 9462] {
         let url = format!("http://127.0.0.1:{port}/readyz");
         loop {
