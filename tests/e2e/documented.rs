@@ -60,12 +60,13 @@ fn the_documented_two_replica_cluster_starts_and_replicates() {
         );
     }
     let tmp = tempfile::tempdir().unwrap();
+    // `/tmp/` first: the binary's own path may lie under /tmp.
     let script = block
+        .replace("/tmp/", &format!("{}/", tmp.path().display()))
         .replace(
             "scripts/run.sh",
             &format!("{} serve", env!("CARGO_BIN_EXE_humem")),
-        )
-        .replace("/tmp/", &format!("{}/", tmp.path().display()));
+        );
     // What the servers print, shown when the test fails.
     let log = tmp.path().join("servers.log");
     let tail = || {
@@ -79,6 +80,7 @@ fn the_documented_two_replica_cluster_starts_and_replicates() {
             .collect();
         ours[ours.len().saturating_sub(60)..].join("\n")
     };
+    let output = std::fs::File::create(&log).unwrap();
     let mut child = Command::new("bash")
         .arg("-c")
         .arg(format!("{script}\nwait"))
@@ -90,8 +92,8 @@ fn the_documented_two_replica_cluster_starts_and_replicates() {
         )
         .env("RUST_BACKTRACE", "0")
         .env("RUST_LIB_BACKTRACE", "0")
-        .stdout(std::fs::File::create(&log).unwrap())
-        .stderr(std::fs::File::options().append(true).open(&log).unwrap())
+        .stdout(output.try_clone().unwrap())
+        .stderr(output)
         .process_group(0)
         .spawn()
         .unwrap();
