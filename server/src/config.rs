@@ -347,6 +347,32 @@ pub enum ConfigError {
     Invalid(String),
 }
 
+/// `HUMEM_*` variables that are not settings: HUMEM_CONFIG names the
+/// file, HUMEM_SERVER_URL, HUMEM_TOKEN and HUMEM_TLS_* are for the clients,
+/// HUMEM_BIN names the binary for test scripts, HUMEM_ORT_PACKAGE is read by
+/// scripts/setup-models.sh, and HUMEM_CODE_KERNEL picks a slower scan
+/// kernel for benchmarks (humem_core::engine::kernels).
+const NOT_SETTINGS: [&str; 10] = [
+    "config",
+    "server_url",
+    "token",
+    "tls_ca",
+    "tls_cert",
+    "tls_key",
+    "tls_server_name",
+    "bin",
+    "ort_package",
+    "code_kernel",
+];
+
+/// Whether `HUMEM_<name>` is a setting (`name` without the prefix, any
+/// case): every such variable is, except the few [`NOT_SETTINGS`].
+pub fn is_setting(name: &str) -> bool {
+    !NOT_SETTINGS
+        .iter()
+        .any(|not| name.eq_ignore_ascii_case(not))
+}
+
 impl Config {
     /// Loads defaults < `file` (if given) < `HUMEM_*` environment, then
     /// applies `overrides` (from flags) on top.
@@ -358,29 +384,8 @@ impl Config {
             }
             figment = figment.merge(Toml::file(file));
         }
-        // HUMEM_CONFIG names the file, HUMEM_SERVER_URL, HUMEM_TOKEN and HUMEM_TLS_* are
-        // for the clients, HUMEM_BIN names the binary for test scripts and
-        // HUMEM_ORT_PACKAGE is read by scripts/setup-models.sh, and
-        // HUMEM_CODE_KERNEL picks a slower scan kernel for benchmarks
-        // (humem_core::engine::kernels): none is a setting.
-        const NOT_SETTINGS: [&str; 10] = [
-            "config",
-            "server_url",
-            "token",
-            "tls_ca",
-            "tls_cert",
-            "tls_key",
-            "tls_server_name",
-            "bin",
-            "ort_package",
-            "code_kernel",
-        ];
         let env = Env::prefixed("HUMEM_")
-            .filter(|key| {
-                !NOT_SETTINGS
-                    .iter()
-                    .any(|name| key.as_str().eq_ignore_ascii_case(name))
-            })
+            .filter(|key| is_setting(key.as_str()))
             .split("__");
         let config: Config = figment
             .merge(env)

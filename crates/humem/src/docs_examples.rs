@@ -183,17 +183,12 @@ fn assignment(token: &str) -> Option<(&str, &str)> {
 fn settings_layer(env: &[(String, String)]) -> Figment {
     let mut figment = Figment::new();
     for (name, value) in env {
-        let Some(key) = name.strip_prefix("HUMEM_") else {
+        let Some(key) = name
+            .strip_prefix("HUMEM_")
+            .filter(|k| humem_server::config::is_setting(k))
+        else {
             continue;
         };
-        if matches!(
-            key,
-            "CONFIG" | "SERVER_URL" | "TOKEN" | "BIN" | "ORT_PACKAGE"
-        ) || key.starts_with("TLS_")
-            || key == "CODE_KERNEL"
-        {
-            continue;
-        }
         let key = key.to_ascii_lowercase().replace("__", ".");
         let value: figment::value::Value = value.parse().expect("any string is a value");
         figment = figment.merge(Serialized::default(&key, value));
@@ -205,10 +200,6 @@ fn settings_layer(env: &[(String, String)]) -> Figment {
 fn humem_arguments(tokens: &[String]) -> Option<Vec<String>> {
     let program = tokens.first()?;
     let is_humem = |t: &str| Path::new(t).file_name().is_some_and(|n| n == "humem");
-    let subcommands: Vec<String> = <Cli as clap::CommandFactory>::command()
-        .get_subcommands()
-        .map(|c| c.get_name().to_string())
-        .collect();
     match program.as_str() {
         p if is_humem(p) => Some(tokens[1..].to_vec()),
         "cargo" if tokens.iter().any(|t| t == "run") => {
@@ -222,6 +213,10 @@ fn humem_arguments(tokens: &[String]) -> Option<Vec<String>> {
         }
         "docker" | "kubectl" => {
             // `docker exec NAME humem SUB …`, `kubectl exec … -- humem SUB …`.
+            let subcommands: Vec<String> = <Cli as clap::CommandFactory>::command()
+                .get_subcommands()
+                .map(|c| c.get_name().to_string())
+                .collect();
             let at = (1..tokens.len()).rev().find(|&i| {
                 is_humem(&tokens[i]) && tokens.get(i + 1).is_some_and(|s| subcommands.contains(s))
             })?;
@@ -340,7 +335,7 @@ fn check_humem(root: &Path, args: &[String], env: &[(String, String)]) -> Result
     let overrides = settings_layer(env).merge(serve.overrides());
     let config = Config::load(file.as_deref(), overrides)
         .map_err(|e| format!("humem {}: {e}", args.join(" ")))?;
-    let credentials = config.auth.tokens_file.is_some() || config.server.tls.client_ca.is_some();
+    let credentials = humem_server::auth::requires_credentials(&config.auth, &config.server.tls);
     humem_server::server::check_exposure(&config, credentials).map_err(|e| {
         format!(
             "humem {}: the server would refuse to start: {e}",

@@ -165,7 +165,6 @@ impl Survey {
             if body.trim_start_matches('/') != lens.trim_start_matches('/') {
                 match self.tf.chain(body, lens) {
                     Ok(mounting) => {
-                        sort_poses(&mut poses);
                         poses = poses
                             .into_iter()
                             .filter_map(|p| {

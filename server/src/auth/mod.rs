@@ -134,6 +134,13 @@ pub struct Authenticator {
     rules: Arc<RwLock<Arc<AccessRules>>>,
 }
 
+/// Whether these settings make every caller show credentials: a token
+/// file, or client certificates required on the gRPC port.
+pub fn requires_credentials(auth: &AuthConfig, tls: &TlsSettings) -> bool {
+    auth.tokens_file.is_some()
+        || (tls.client_ca.is_some() && tls.client_auth == ClientAuth::Required)
+}
+
 impl Authenticator {
     /// Authentication off: every caller is [`Caller::Anyone`].
     pub fn disabled() -> Authenticator {
@@ -157,9 +164,7 @@ impl Authenticator {
         tls: &TlsSettings,
         rules_file: Option<(std::path::PathBuf, RulesSource)>,
     ) -> Result<Authenticator, tokens::TokenError> {
-        let client_certificates =
-            tls.client_ca.is_some() && tls.client_auth == ClientAuth::Required;
-        let enabled = auth.tokens_file.is_some() || client_certificates;
+        let enabled = requires_credentials(auth, tls);
         let files: Vec<_> = auth.tokens_file.iter().cloned().collect();
         let seen = crate::watch::Snapshot::of(&files);
         let table = match &auth.tokens_file {
