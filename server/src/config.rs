@@ -206,9 +206,16 @@ pub struct StoreConfig {
     /// Keep a neighbour graph (HNSW) over the descriptors, saved beside
     /// the index snapshot: queries whose eligible keyframes number
     /// `vpr.approximate_from` or more take their candidates from it
-    /// instead of scanning every one. Costs about a millisecond of one
-    /// core per insert and the descriptors' one-byte codes again in memory.
+    /// instead of scanning every one. Costs a fraction of a millisecond
+    /// of one core per insert and a few hundred bytes a keyframe.
     pub neighbour_graph: bool,
+    /// Length the neighbour graph shortens longer descriptors to, by a
+    /// fixed random rotation, before it stores them (0: their own
+    /// length). Its candidates are scored with the whole descriptor, so
+    /// this only trades the graph's insert cost and memory against how
+    /// often it proposes the exact answer. A saved graph of another
+    /// length is rebuilt at start.
+    pub neighbour_graph_length: usize,
 }
 
 /// Where the index keeps its f32 descriptors (`store.descriptors`).
@@ -264,6 +271,7 @@ impl Default for StoreConfig {
             descriptors: DescriptorStorage::Auto,
             cache_bytes: humem_store::DEFAULT_CACHE_BYTES,
             neighbour_graph: true,
+            neighbour_graph_length: humem_core::engine::graph::SHORT_LENGTH,
         }
     }
 }

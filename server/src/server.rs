@@ -91,6 +91,7 @@ async fn open(
         descriptors_to_file: config.store.descriptors_to_file(config.vpr.scan),
         cache_bytes: config.store.cache_bytes,
         neighbour_graph: config.store.neighbour_graph,
+        neighbour_graph_length: config.store.neighbour_graph_length,
     };
     // Cluster mode: a store the write log no longer reaches (new, or away
     // longer than the log keeps entries) starts from the newest snapshot.

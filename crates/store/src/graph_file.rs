@@ -103,18 +103,20 @@ impl UnpublishedGraph {
     }
 }
 
-/// Starts `index` keeping a neighbour graph: the one saved in `dir` where
-/// it can be read, else an empty one. None where no graph could be kept.
+/// Starts `index` keeping a neighbour graph that shortens descriptors to
+/// `short` values (0: not at all): the one saved in `dir` where it can be
+/// read and was made alike, else an empty one. None where no graph could be kept.
 /// Either way the rows the graph lacks wait to enter it, and from now on
 /// so does every keyframe stored ([`Index::defer_graph_inserts`]): the
 /// writer adds them in the background, so the open does not wait for
 /// them (a million keyframes take more than ten minutes on two cores).
-pub(crate) fn attach(dir: &Path, index: &mut Index) -> Option<GraphSource> {
+pub(crate) fn attach(dir: &Path, index: &mut Index, short: usize) -> Option<GraphSource> {
     index.defer_graph_inserts();
+    index.shorten_graph_rows(short);
     let started = Instant::now();
     let file = path(dir);
     let saved = if file.exists() && index.dim() > 0 {
-        match NeighbourGraph::load(&file, index.dim()) {
+        match NeighbourGraph::load(&file, index.dim(), index.graph_short_length()) {
             Ok(graph) => Some(graph),
             Err(e) => {
                 tracing::warn!(error = %e, "the saved neighbour graph is not used: rebuilding it");
@@ -146,13 +148,13 @@ pub(crate) fn attach(dir: &Path, index: &mut Index) -> Option<GraphSource> {
 /// [`attach`] for an index just rebuilt from every record: a saved graph
 /// may be older than the records and is dropped, unless a restore left
 /// one in step with them ([`restored_path`]).
-pub(crate) fn attach_rebuilt(dir: &Path, index: &mut Index) -> Option<GraphSource> {
+pub(crate) fn attach_rebuilt(dir: &Path, index: &mut Index, short: usize) -> Option<GraphSource> {
     let restored = restored_path(dir);
     let taken = restored.exists() && std::fs::rename(&restored, path(dir)).is_ok();
     if !taken {
         let _ = std::fs::remove_file(path(dir));
     }
-    attach(dir, index)
+    attach(dir, index, short)
 }
 
 /// Drops a graph a restore left, where the store keeps none.

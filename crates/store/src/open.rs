@@ -82,7 +82,9 @@ pub(crate) fn open(
         descriptors_to_file,
         cache_bytes,
         neighbour_graph,
+        neighbour_graph_length,
     } = options;
+    let neighbour_graph = neighbour_graph.then_some(neighbour_graph_length);
     let db = sled::Config::new()
         .path(dir)
         .cache_capacity(cache_bytes)
@@ -240,8 +242,9 @@ struct SnapshotLoad {
 /// Loads the index: from the snapshot brought up to date by the journal
 /// when that is possible, else from every record in the tree. The store's directory is
 /// `placement`'s, and the descriptors leave memory as it says while they
-/// load, not after. With `neighbour_graph`, the index keeps one from the
-/// start (see [`graph_file`]).
+/// load, not after. With `neighbour_graph` (the length it shortens
+/// descriptors to), the index keeps one from the start (see
+/// [`graph_file`]).
 #[allow(clippy::too_many_arguments)]
 fn load_index(
     placement: &DescriptorPlacement,
@@ -251,7 +254,7 @@ fn load_index(
     store_id: u128,
     dim: usize,
     sequence: u64,
-    neighbour_graph: bool,
+    neighbour_graph: Option<usize>,
 ) -> Result<LoadedIndex, StoreError> {
     let reason = match from_snapshot(
         placement,
@@ -296,10 +299,10 @@ fn load_index(
         }
     }
     placement.apply(&mut index);
-    let graph = if neighbour_graph {
+    let graph = if let Some(short) = neighbour_graph {
         // Built once from every row (on every core), not row by row,
         // unless a restore left one in step with the records.
-        graph_file::attach_rebuilt(placement.dir(), &mut index)
+        graph_file::attach_rebuilt(placement.dir(), &mut index, short)
     } else {
         graph_file::discard_restored(placement.dir());
         None
@@ -350,7 +353,7 @@ fn from_snapshot(
     store_id: u128,
     dim: usize,
     sequence: u64,
-    neighbour_graph: bool,
+    neighbour_graph: Option<usize>,
 ) -> Result<Result<SnapshotLoad, String>, StoreError> {
     let Some((header, mut index)) =
         snapshot::read(placement.dir(), store_id, dim, placement.rule())?
@@ -370,8 +373,8 @@ fn from_snapshot(
             header.sequence
         )));
     }
-    let graph = if neighbour_graph {
-        graph_file::attach(placement.dir(), &mut index)
+    let graph = if let Some(short) = neighbour_graph {
+        graph_file::attach(placement.dir(), &mut index, short)
     } else {
         None
     };

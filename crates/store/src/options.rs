@@ -37,6 +37,9 @@ pub struct StoreOptions {
     /// approximate first stage of queries over many keyframes), saved
     /// beside its snapshot.
     pub neighbour_graph: bool,
+    /// Length the neighbour graph shortens longer descriptors to (0: their
+    /// own length); see [`humem_core::engine::graph::SHORT_LENGTH`].
+    pub neighbour_graph_length: usize,
 }
 
 /// Default of [`StoreOptions::cache_bytes`]: sled's own.
@@ -52,6 +55,7 @@ impl Default for StoreOptions {
             descriptors_to_file: None,
             cache_bytes: DEFAULT_CACHE_BYTES,
             neighbour_graph: false,
+            neighbour_graph_length: humem_core::engine::graph::SHORT_LENGTH,
         }
     }
 }

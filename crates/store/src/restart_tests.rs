@@ -627,3 +627,44 @@ async fn a_snapshot_without_a_graph_removes_the_one_an_earlier_open_saved() {
     assert!(store.wait_for_neighbour_graph(std::time::Duration::from_secs(60)));
     assert_eq!(store.index().neighbour_graph().unwrap().len(), 11);
 }
+
+#[tokio::test]
+async fn a_saved_graph_of_another_length_is_rebuilt_at_open() {
+    let dir = tempfile::tempdir().unwrap();
+    let open = |length: usize| {
+        open_retrying(
+            dir.path(),
+            StoreOptions {
+                snapshot_every: 0,
+                queue_capacity: 16,
+                neighbour_graph: true,
+                neighbour_graph_length: length,
+                ..StoreOptions::default()
+            },
+        )
+    };
+    {
+        let store = open(4);
+        let rows = (0..20u64)
+            .map(|i| {
+                let mut k = kf("a", "s", i, 0);
+                k.features.descriptor = (0..8).map(|j| ((i * 8 + j) as f32 * 0.37).sin()).collect();
+                k
+            })
+            .collect();
+        insert(&store, rows).await;
+        assert!(store.wait_for_neighbour_graph(std::time::Duration::from_secs(60)));
+        assert_eq!(store.index().neighbour_graph().unwrap().stored_length(), 4);
+        store.snapshot().unwrap();
+    }
+    {
+        let store = open(4);
+        assert_eq!(store.opened().graph, Some(graph_file::GraphSource::Loaded));
+    }
+    let store = open(0);
+    assert_eq!(store.opened().graph, Some(graph_file::GraphSource::Built));
+    assert!(store.wait_for_neighbour_graph(std::time::Duration::from_secs(60)));
+    let index = store.index();
+    let graph = index.neighbour_graph().unwrap();
+    assert_eq!((graph.stored_length(), graph.len()), (8, 20));
+}

@@ -8,7 +8,13 @@
 //! search, removal, and saving to a file); this module only decides what it
 //! stores and hides its error type:
 //!
-//! - each row is stored as its one-byte code (scaled by its largest
+//! - each row is first shortened to [`SHORT_LENGTH`] values by a fixed
+//!   random rotation ([`projection`](super::projection)): an insert
+//!   compares the row with hundreds of stored ones, and at 1280 values
+//!   the graph's inserts took half of a fleet server's cores; the
+//!   shortened rows' dot products are the originals' plus a small noise,
+//!   and the candidates are scored exactly anyway;
+//! - it is then stored as its one-byte code (scaled by its largest
 //!   magnitude, as [`codes`](super::codes) does), under the cosine metric:
 //!   the scaling is undone by the cosine, a quarter of the f32 bytes are
 //!   read, and unit descriptors rank as their dot products do;
@@ -28,6 +34,13 @@ use std::path::Path;
 use usearch::{Index as Hnsw, IndexOptions, MetricKind, ScalarKind};
 
 use super::codes::i8_codes as code;
+use super::projection::Projection;
+
+/// Length the graph shortens longer descriptors to (`humem bench graph
+/// --short-lengths`): 256 values keep the exact top-1 among the proposed
+/// candidates as often as the full length does, at a fraction of an
+/// insert's cost. Shorter descriptors are stored as they are.
+pub const SHORT_LENGTH: usize = 256;
 
 /// Links per node (HNSW's `M`): 16 is the usual default; fewer links make
 /// inserts cheaper and recall lower (`humem bench scan`).
@@ -53,10 +66,12 @@ pub enum GraphError {
     /// USearch refused (out of memory, a file it cannot read, …).
     #[error("neighbour graph: {0}")]
     Native(String),
-    /// A saved graph was made for descriptors of another length.
-    #[error("the saved neighbour graph holds {found}-value descriptors, the store {expected}")]
+    /// A saved graph stores rows of another length than this one would.
+    #[error(
+        "the saved neighbour graph stores rows of {found} values, this one would store {expected}"
+    )]
     Dimension {
-        /// The index's descriptor length.
+        /// The length this graph stores rows at.
         expected: usize,
         /// The saved graph's.
         found: usize,
@@ -72,12 +87,16 @@ fn native(e: impl std::fmt::Display) -> GraphError {
 pub struct NeighbourGraph {
     graph: Hnsw,
     dim: usize,
+    /// Shortens rows and queries before the graph sees them; None where
+    /// they are stored at their own length.
+    projection: Option<Projection>,
 }
 
 impl std::fmt::Debug for NeighbourGraph {
     fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
         f.debug_struct("NeighbourGraph")
             .field("dim", &self.dim)
+            .field("stored_length", &self.stored_length())
             .field("len", &self.len())
             .finish()
     }
@@ -95,19 +114,57 @@ fn options(dim: usize) -> IndexOptions {
     }
 }
 
+/// The length the graph stores `dim`-value descriptors at when asked to
+/// shorten them to `short` (0: not at all).
+pub fn stored_length(dim: usize, short: usize) -> usize {
+    if short == 0 {
+        dim
+    } else {
+        dim.min(short)
+    }
+}
+
 impl NeighbourGraph {
-    /// An empty graph for descriptors of length `dim` (> 0).
+    /// An empty graph for descriptors of length `dim` (> 0), stored at
+    /// [`SHORT_LENGTH`] values where they are longer.
     pub fn new(dim: usize) -> Result<Self, GraphError> {
-        let graph = Hnsw::new(&options(dim)).map_err(native)?;
+        Self::shortened(dim, SHORT_LENGTH)
+    }
+
+    /// An empty graph for descriptors of length `dim` (> 0), stored at
+    /// `short` values where they are longer (0: at their own length).
+    pub fn shortened(dim: usize, short: usize) -> Result<Self, GraphError> {
+        let length = stored_length(dim, short);
+        let graph = Hnsw::new(&options(length)).map_err(native)?;
         graph
             .reserve_capacity_and_threads(1024, threads())
             .map_err(native)?;
-        Ok(NeighbourGraph { graph, dim })
+        Ok(NeighbourGraph {
+            graph,
+            dim,
+            projection: projection(dim, length),
+        })
     }
 
     /// Descriptor length.
     pub fn dim(&self) -> usize {
         self.dim
+    }
+
+    /// Length the graph stores each row at.
+    pub fn stored_length(&self) -> usize {
+        self.projection
+            .as_ref()
+            .map_or(self.dim, Projection::output_dim)
+    }
+
+    /// What the graph stores of `row`: its one-byte code, shortened first
+    /// where the graph shortens.
+    fn stored(&self, row: &[f32]) -> Vec<i8> {
+        match &self.projection {
+            Some(p) => code(&p.apply(row)),
+            None => code(row),
+        }
     }
 
     /// Rows stored.
@@ -163,7 +220,7 @@ impl NeighbourGraph {
         if self.graph.contains(key) {
             self.graph.remove(key).map_err(native)?;
         }
-        self.graph.add(key, &code(row)).map_err(native)?;
+        self.graph.add(key, &self.stored(row)).map_err(native)?;
         Ok(())
     }
 
@@ -186,7 +243,7 @@ impl NeighbourGraph {
         }
         let found = self
             .graph
-            .filtered_search(&code(query), count, keep)
+            .filtered_search(&self.stored(query), count, keep)
             .map_err(native)?;
         Ok(found.keys)
     }
@@ -197,22 +254,33 @@ impl NeighbourGraph {
         Ok(())
     }
 
-    /// The graph saved at `path`, for descriptors of length `dim`.
-    pub fn load(path: &Path, dim: usize) -> Result<Self, GraphError> {
+    /// The graph saved at `path`, for descriptors of length `dim` stored
+    /// at `short` values where they are longer (as the saving graph was
+    /// made: a graph of another stored length is refused).
+    pub fn load(path: &Path, dim: usize, short: usize) -> Result<Self, GraphError> {
         let path = path_str(path)?;
         let meta = Hnsw::metadata(&path).map_err(native)?;
-        if meta.dimensions as usize != dim {
+        let length = stored_length(dim, short);
+        if meta.dimensions as usize != length {
             return Err(GraphError::Dimension {
-                expected: dim,
+                expected: length,
                 found: meta.dimensions as usize,
             });
         }
-        let graph = Hnsw::new(&options(dim)).map_err(native)?;
+        let graph = Hnsw::new(&options(length)).map_err(native)?;
         graph.load(&path).map_err(native)?;
-        let loaded = NeighbourGraph { graph, dim };
+        let loaded = NeighbourGraph {
+            graph,
+            dim,
+            projection: projection(dim, length),
+        };
         loaded.reserve(1024)?;
         Ok(loaded)
     }
+}
+
+fn projection(dim: usize, length: usize) -> Option<Projection> {
+    (length < dim).then(|| Projection::new(dim, length))
 }
 
 fn path_str(path: &Path) -> Result<String, GraphError> {
@@ -280,7 +348,7 @@ mod tests {
         let dir = tempfile::tempdir().unwrap();
         let path = dir.path().join("graph");
         graph.save(&path).unwrap();
-        let loaded = NeighbourGraph::load(&path, 48).unwrap();
+        let loaded = NeighbourGraph::load(&path, 48, SHORT_LENGTH).unwrap();
         assert_eq!(loaded.len(), 500);
         for q in [0, 17, 499] {
             assert_eq!(
@@ -289,7 +357,7 @@ mod tests {
             );
         }
         assert!(matches!(
-            NeighbourGraph::load(&path, 64),
+            NeighbourGraph::load(&path, 64, SHORT_LENGTH),
             Err(GraphError::Dimension {
                 expected: 64,
                 found: 48
@@ -298,6 +366,46 @@ mod tests {
         let mut more = loaded;
         more.add(1, &data[3]).unwrap();
         assert_eq!(more.len(), 501);
+    }
+
+    #[test]
+    fn a_shortened_graph_finds_places_and_loads_only_where_made_alike() {
+        let data = rows(1_500, 512);
+        let mut graph = NeighbourGraph::shortened(512, 64).unwrap();
+        assert_eq!((graph.dim(), graph.stored_length()), (512, 64));
+        for (i, row) in data.iter().enumerate() {
+            graph.add(i as u64, row).unwrap();
+        }
+        for q in [3, 400, 1_499] {
+            let found = graph.search(&data[q], 4, |k| k != q as u64).unwrap();
+            assert_eq!(found[0] / 4, q as u64 / 4, "{q}: {found:?}");
+        }
+        let dir = tempfile::tempdir().unwrap();
+        let path = dir.path().join("graph");
+        graph.save(&path).unwrap();
+        let loaded = NeighbourGraph::load(&path, 512, 64).unwrap();
+        assert_eq!(
+            loaded.search(&data[7], 10, |_| true).unwrap(),
+            graph.search(&data[7], 10, |_| true).unwrap()
+        );
+        // Made at another length: refused, so that the caller rebuilds it.
+        assert!(matches!(
+            NeighbourGraph::load(&path, 512, 0),
+            Err(GraphError::Dimension {
+                expected: 512,
+                found: 64
+            })
+        ));
+        assert!(NeighbourGraph::load(&path, 512, 128).is_err());
+        // Descriptors no longer than the length are stored as they are.
+        assert_eq!(
+            NeighbourGraph::shortened(48, 64).unwrap().stored_length(),
+            48
+        );
+        assert_eq!(
+            NeighbourGraph::shortened(512, 0).unwrap().stored_length(),
+            512
+        );
     }
 
     #[test]

@@ -17,6 +17,8 @@
 //!   file I/O of the core: positional reads and writes);
 //! - [`graph`]: the neighbour graph (HNSW) that proposes a large query's
 //!   candidates without reading every row;
+//! - [`projection`]: the fixed random rotation that shortens descriptors
+//!   for the graph, so that its inserts cost a fraction;
 //! - [`filter`]: what a scan asks of the eligibility rule (a test per row
 //!   and, where known, the rows that can pass);
 //! - `visit`: which rows a scan visits, in blocks for the cores and runs of
@@ -27,5 +29,6 @@ pub mod filter;
 pub mod graph;
 pub mod kernels;
 pub mod matrix;
+pub mod projection;
 pub mod row_file;
 pub(crate) mod visit;

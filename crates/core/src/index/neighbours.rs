@@ -29,7 +29,7 @@ use std::sync::Mutex;
 
 use rayon::prelude::*;
 
-use crate::engine::graph::{GraphError, NeighbourGraph};
+use crate::engine::graph::{stored_length, GraphError, NeighbourGraph};
 use crate::keyframe::KeyframeKey;
 
 use super::table::{Index, Neighbours};
@@ -71,15 +71,17 @@ impl Index {
         if self.neighbours.is_some() || self.matrix.dim() == 0 {
             return Ok(());
         }
+        let dim = self.matrix.dim();
+        let length = stored_length(dim, self.graph_short);
         let graph = match saved {
-            Some(graph) if graph.dim() == self.matrix.dim() => graph,
+            Some(graph) if graph.dim() == dim && graph.stored_length() == length => graph,
             Some(graph) => {
                 return Err(GraphError::Dimension {
-                    expected: self.matrix.dim(),
-                    found: graph.dim(),
+                    expected: length,
+                    found: graph.stored_length(),
                 })
             }
-            None => NeighbourGraph::new(self.matrix.dim())?,
+            None => NeighbourGraph::shortened(dim, self.graph_short)?,
         };
         let mut rows = HashMap::with_capacity(self.rows.len());
         let mut missing = 0;
@@ -107,6 +109,20 @@ impl Index {
             self.flush_graph_inserts();
         }
         Ok(())
+    }
+
+    /// Has a graph started from now on shorten descriptors longer than
+    /// `short` values to `short` (0: store them at their own length;
+    /// [`crate::engine::graph::SHORT_LENGTH`] by default). A graph kept
+    /// already is not changed.
+    pub fn shorten_graph_rows(&mut self, short: usize) {
+        self.graph_short = short;
+    }
+
+    /// Length a graph started now would store rows at (to load a saved
+    /// one made alike).
+    pub fn graph_short_length(&self) -> usize {
+        self.graph_short
     }
 
     /// The neighbour graph, if one is kept (to read its size).

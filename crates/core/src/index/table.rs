@@ -124,6 +124,9 @@ pub struct Index {
     /// Whether stored keyframes wait to enter the graph until a caller adds
     /// them ([`Index::defer_graph_inserts`]) instead of entering it at once.
     pub(super) graph_deferred: bool,
+    /// Length the graph shortens longer descriptors to (0: it does not;
+    /// see [`Index::shorten_graph_rows`]).
+    pub(super) graph_short: usize,
 }
 
 /// The neighbour graph and the rows its keys name (see `neighbours`).
@@ -180,6 +183,7 @@ impl Index {
             neighbours: None,
             graph_wanted: false,
             graph_deferred: false,
+            graph_short: crate::engine::graph::SHORT_LENGTH,
         }
     }
 
