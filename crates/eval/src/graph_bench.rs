@@ -49,6 +49,15 @@ pub struct GraphBench {
     /// Robots sharing the store.
     #[arg(long, default_value_t = 32)]
     pub robots: usize,
+    /// Lengths the graph shortens the descriptors to (0: their own
+    /// length), one graph and table each.
+    #[arg(long, value_delimiter = ',', default_values_t = [humem_core::engine::graph::SHORT_LENGTH])]
+    pub short_lengths: Vec<usize>,
+    /// What the queries may see, one table each: every other map (a
+    /// fleet's merge query), or one robot's map (a loop query over a robot's own map, a
+    /// `1/robots` share of the store, walked with a selective filter).
+    #[arg(long, value_enum, value_delimiter = ',', default_values_t = [BenchScope::OtherMaps])]
+    pub scopes: Vec<BenchScope>,
     /// Candidates the graph proposes, one row of the table each.
     #[arg(long, value_delimiter = ',', default_values_t = [25, 50, 100, 200, 400])]
     pub candidates: Vec<usize>,
@@ -59,11 +68,32 @@ pub struct GraphBench {
     pub export: Option<PathBuf>,
 }
 
+/// What `humem bench graph`'s queries may see.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, clap::ValueEnum)]
+pub enum BenchScope {
+    /// Every map but the (absent) querying robot's: the whole store.
+    OtherMaps,
+    /// The first robot's map only.
+    OneRobot,
+}
+
+/// The robot whose map `--scope one-robot` queries see.
+const LISTED_ROBOT: &str = "robot-0";
+
 /// One store size's measurements.
 struct Measured {
     rows: usize,
+    /// Length the graph stores each row at.
+    stored_length: usize,
     build: Duration,
     graph_bytes: usize,
+    /// One per `--scopes`.
+    parts: Vec<ScopePart>,
+}
+
+/// One scope's queries on one graph.
+struct ScopePart {
+    scope: BenchScope,
     exact_ms: f64,
     curves: Vec<Point>,
 }
@@ -108,8 +138,10 @@ pub fn graph(config: Config, args: GraphBench) -> anyhow::Result<()> {
         .context("building a one-thread pool")?;
     let mut table = Vec::new();
     for (i, &rows) in args.rows.iter().enumerate() {
-        let last = i + 1 == args.rows.len();
-        table.push(measure(&config, &args, rows, &one_core, last)?);
+        for (j, &short) in args.short_lengths.iter().enumerate() {
+            let last = i + 1 == args.rows.len() && j + 1 == args.short_lengths.len();
+            table.push(measure(&config, &args, rows, short, &one_core, last)?);
+        }
     }
     print(&args, &table);
     Ok(())
@@ -119,6 +151,7 @@ fn measure(
     config: &Config,
     args: &GraphBench,
     rows: usize,
+    short: usize,
     one_core: &rayon::ThreadPool,
     last: bool,
 ) -> anyhow::Result<Measured> {
@@ -133,11 +166,44 @@ fn measure(
         rayon::current_num_threads()
     );
     let started = Instant::now();
+    index.shorten_graph_rows(short);
     index.keep_neighbour_graph(None)?;
     let build = started.elapsed();
     let graph_bytes = index.neighbour_graph().map_or(0, |g| g.memory_bytes());
+    let stored_length = index
+        .neighbour_graph()
+        .map_or(args.dim, |g| g.stored_length());
 
     let queries = queries(fleet.places(), args.dim, args.queries);
+    if last {
+        if let Some(dir) = &args.export {
+            export(dir, &index, &queries)?;
+        }
+    }
+    let parts = args
+        .scopes
+        .iter()
+        .map(|&scope| measure_scope(config, args, &index, scope, &queries, one_core))
+        .collect();
+    Ok(Measured {
+        rows,
+        stored_length,
+        build,
+        graph_bytes,
+        parts,
+    })
+}
+
+/// The queries over `scope` against the exact pass, per number of
+/// candidates, on the graph `index` keeps.
+fn measure_scope(
+    config: &Config,
+    args: &GraphBench,
+    index: &Index,
+    scope: BenchScope,
+    queries: &[Features],
+    one_core: &rayon::ThreadPool,
+) -> ScopePart {
     let context = QueryContext {
         session: SessionKey {
             robot_id: "visitor".into(),
@@ -147,9 +213,17 @@ fn measure(
         frame_id: 0,
         map_id: 0,
         min_frame_gap: 0,
-        scope: Scope::OtherMaps,
+        scope: match scope {
+            BenchScope::OtherMaps => Scope::OtherMaps,
+            BenchScope::OneRobot => Scope::Listed {
+                robot_ids: vec![LISTED_ROBOT.into()],
+                maps: Vec::new(),
+            },
+        },
         readable_robots: None,
     };
+    let kept =
+        |row: usize| scope == BenchScope::OtherMaps || index.meta(row).key.robot_id == LISTED_ROBOT;
     let filter = index.eligibility(&context);
     let exact = VprParams {
         exact: true,
@@ -159,22 +233,16 @@ fn measure(
         let query = ScalQuery { history: vec![q] };
         one_core.install(|| {
             let started = Instant::now();
-            let scan = scal_scan(params, &query, &index, &filter);
+            let scan = scal_scan(params, &query, index, &filter);
             (started.elapsed(), scan)
         })
     };
     let reference: Vec<_> = queries.iter().map(|q| run(&exact, q)).collect();
     let exact_ms = median_ms(reference.iter().map(|r| r.0));
-    let truth: Vec<usize> = queries
+    let truth: Vec<Option<usize>> = queries
         .iter()
-        .map(|q| dot_top(&index, &q.descriptor, 5))
-        .map(|top| top[0])
+        .map(|q| best_kept(index, &q.descriptor, &kept))
         .collect();
-    if last {
-        if let Some(dir) = &args.export {
-            export(dir, &index, &queries)?;
-        }
-    }
     let mut curves = Vec::new();
     for &candidates in &args.candidates {
         let params = VprParams {
@@ -204,7 +272,7 @@ fn measure(
         for (q, &want) in queries.iter().zip(&truth) {
             let started = Instant::now();
             let found = index
-                .nearest_rows(&q.descriptor, candidates, &|_| true)
+                .nearest_rows(&q.descriptor, candidates, &kept)
                 .unwrap_or_default();
             let best = found
                 .into_iter()
@@ -212,7 +280,7 @@ fn measure(
                 .max_by(|a, b| a.0.total_cmp(&b.0).then(b.1.cmp(&a.1)))
                 .map(|(_, row)| row);
             search_times.push(started.elapsed());
-            search_top1 += usize::from(best == Some(want));
+            search_top1 += usize::from(best == want);
         }
         let n = queries.len() as f64;
         curves.push(Point {
@@ -226,13 +294,11 @@ fn measure(
             margin: median(margin),
         });
     }
-    Ok(Measured {
-        rows,
-        build,
-        graph_bytes,
+    ScopePart {
+        scope,
         exact_ms,
         curves,
-    })
+    }
 }
 
 /// `n` new visits to stored places: each a place's centre plus new noise.
@@ -253,6 +319,16 @@ fn dot_top(index: &Index, query: &[f32], k: usize) -> Vec<usize> {
     let mut top = flat_scan(index, query, k);
     top.sort_by(|a, b| b.0.total_cmp(&a.0).then(a.1.cmp(&b.1)));
     top.into_iter().map(|(_, row)| row).collect()
+}
+
+/// The row `keep` accepts with the highest inner product with `query`
+/// (ties: lower row).
+fn best_kept(index: &Index, query: &[f32], keep: &dyn Fn(usize) -> bool) -> Option<usize> {
+    (0..index.len())
+        .filter(|&row| keep(row))
+        .map(|row| (dot_f32_wide(query, &index.descriptor(row)), row))
+        .max_by(|a, b| a.0.total_cmp(&b.0).then(b.1.cmp(&a.1)))
+        .map(|(_, row)| row)
 }
 
 /// `base.f32` (rows × dim), `queries.f32` (queries × dim) and
@@ -299,34 +375,45 @@ fn median_ms(times: impl Iterator<Item = Duration>) -> f64 {
 
 fn print(args: &GraphBench, table: &[Measured]) {
     println!(
-        "neighbour graph against the exact pass: {}-d, {} robots, {} queries over every other map, one core per query",
-        args.dim, args.robots, args.queries
+        "neighbour graph against the exact pass: {}-d, {} robots, {} queries, one core per query",
+        args.dim, args.robots, args.queries,
     );
     for m in table {
         println!();
         println!(
-            "{} keyframes: graph built in {:.1} s on {} threads, {:.0} bytes a keyframe; exact SCAL pass {:.2} ms",
+            "{} keyframes, graph rows of {} values: built in {:.1} s on {} threads, {:.0} bytes a keyframe",
             m.rows,
+            m.stored_length,
             m.build.as_secs_f64(),
             rayon::current_num_threads(),
             m.graph_bytes as f64 / m.rows.max(1) as f64,
-            m.exact_ms
         );
-        println!("| candidates | SCAL ms | × exact | SCAL top-1 | SCAL top-5 | null shift / top-1 margin | search ms | search top-1 |");
-        println!("| ---: | ---: | ---: | ---: | ---: | ---: | ---: | ---: |");
-        for p in &m.curves {
+        for part in &m.parts {
+            println!();
             println!(
-                "| {} | {:.3} | {:.3} | {:.3} | {:.3} | {:.4} / {:.3} | {:.3} | {:.3} |",
-                p.candidates,
-                p.scal_ms,
-                p.scal_ms / m.exact_ms.max(1e-9),
-                p.scal_top1,
-                p.scal_top5,
-                p.null_shift,
-                p.margin,
-                p.search_ms,
-                p.search_top1
+                "queries over {}: exact SCAL pass {:.2} ms",
+                match part.scope {
+                    BenchScope::OtherMaps => "every other map",
+                    BenchScope::OneRobot => "one robot's map",
+                },
+                part.exact_ms
             );
+            println!("| candidates | SCAL ms | × exact | SCAL top-1 | SCAL top-5 | null shift / top-1 margin | search ms | search top-1 |");
+            println!("| ---: | ---: | ---: | ---: | ---: | ---: | ---: | ---: |");
+            for p in &part.curves {
+                println!(
+                    "| {} | {:.3} | {:.3} | {:.3} | {:.3} | {:.4} / {:.3} | {:.3} | {:.3} |",
+                    p.candidates,
+                    p.scal_ms,
+                    p.scal_ms / part.exact_ms.max(1e-9),
+                    p.scal_top1,
+                    p.scal_top5,
+                    p.null_shift,
+                    p.margin,
+                    p.search_ms,
+                    p.search_top1
+                );
+            }
         }
     }
 }
@@ -343,6 +430,8 @@ mod tests {
             dim: 32,
             queries: 20,
             robots: 4,
+            short_lengths: vec![16],
+            scopes: vec![BenchScope::OtherMaps],
             candidates: vec![50, 200],
             export: Some(dir.path().to_path_buf()),
         };
@@ -350,9 +439,12 @@ mod tests {
             .num_threads(1)
             .build()
             .unwrap();
-        let m = measure(&Config::default(), &args, 3_000, &pool, true).unwrap();
-        assert_eq!(m.curves.len(), 2);
+        let m = measure(&Config::default(), &args, 3_000, 16, &pool, true).unwrap();
+        assert_eq!(m.parts.len(), 1);
+        assert_eq!(m.stored_length, 16);
         assert!(m.graph_bytes > 0);
+        let m = &m.parts[0];
+        assert_eq!(m.curves.len(), 2);
         // 200 candidates of 3 000 rows find the exact answer nearly always.
         assert!(m.curves[1].scal_top1 >= 0.9, "{}", m.curves[1].scal_top1);
         assert!(
@@ -368,5 +460,33 @@ mod tests {
             .unwrap()
             .len();
         assert_eq!(truth, 20 * 5 * 4);
+    }
+
+    #[test]
+    fn queries_over_one_robots_map_are_measured_against_that_map() {
+        let args = GraphBench {
+            rows: vec![3_000],
+            dim: 32,
+            queries: 20,
+            robots: 4,
+            short_lengths: vec![0],
+            scopes: vec![BenchScope::OneRobot],
+            candidates: vec![200],
+            export: None,
+        };
+        let pool = rayon::ThreadPoolBuilder::new()
+            .num_threads(1)
+            .build()
+            .unwrap();
+        let m = measure(&Config::default(), &args, 3_000, 0, &pool, false).unwrap();
+        assert_eq!(m.stored_length, 32);
+        let m = &m.parts[0];
+        // A quarter of the store: 200 candidates find its best nearly always.
+        assert!(m.curves[0].scal_top1 >= 0.9, "{}", m.curves[0].scal_top1);
+        assert!(
+            m.curves[0].search_top1 >= 0.9,
+            "{}",
+            m.curves[0].search_top1
+        );
     }
 }

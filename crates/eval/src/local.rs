@@ -217,6 +217,7 @@ impl LocalDatabase {
         for &(_, layers) in methods {
             let mut samples = Samples::default();
             let mut index = Index::new(dim);
+            keep_graph_as_the_server_would(config, &mut index, self.references.len())?;
             let mut next_reference = 0;
             for q in selection.all() {
                 while next_reference < admitted(q).min(self.references.len()) {
@@ -273,4 +274,27 @@ impl LocalDatabase {
         }
         Ok(out)
     }
+}
+
+/// Keeps a neighbour graph in `index`, as the server's store does
+/// (`store.neighbour_graph`, shortened to `store.neighbour_graph_length`),
+/// where the data set's `references` reach `vpr.approximate_from`, so
+/// that queries take their candidates from it as a server's would: with
+/// the default switch point no data set does, and a run with
+/// `HUMEM_VPR__APPROXIMATE_FROM=1` measures the graph on real images.
+fn keep_graph_as_the_server_would(
+    config: &Config,
+    index: &mut Index,
+    references: usize,
+) -> anyhow::Result<()> {
+    if config.store.neighbour_graph
+        && !config.vpr.exact
+        && references >= config.vpr.approximate_from
+    {
+        index.shorten_graph_rows(config.store.neighbour_graph_length);
+        index
+            .keep_neighbour_graph(None)
+            .context("starting the neighbour graph")?;
+    }
+    Ok(())
 }
