@@ -7,17 +7,36 @@
 //! read lock longer, which the store writer must wait out before it can
 //! publish an insert. So at most `concurrent` scans run; the rest wait in
 //! arrival order. A query that must wait and whose expected answer time
-//! (the scans ahead of it times the recent scan time, plus its own scan),
-//! counted from its arrival, is longer than its budget (the configured one, or the caller's
-//! deadline if shorter) is refused at once with RESOURCE_EXHAUSTED and a
-//! retry hint, rather than answered after its caller has given up; so the
-//! queries that are admitted are answered within the budget.
+//! (the scans ahead of it, each at the recent scan time of its kind, plus
+//! its own scan), counted from its arrival, is longer than its budget (the
+//! configured one, or the caller's deadline if shorter) is refused at once
+//! with RESOURCE_EXHAUSTED and a retry hint, rather than answered after
+//! its caller has given up; so the queries that are admitted are answered
+//! within the budget.
+//!
+//! The recent scan time is kept per [`ScanKind`]: on a fleet's store a
+//! query that asks for the exact pass costs a hundred times one answered
+//! through the neighbour graph, and one mean over both made every query
+//! look as slow as the last exact one, so that a server answering in
+//! milliseconds refused most of what it was asked.
 
 use std::sync::atomic::{AtomicU64, AtomicUsize, Ordering};
 use std::sync::Arc;
 use std::time::{Duration, Instant};
 
 use tokio::sync::{OwnedSemaphorePermit, Semaphore};
+
+/// What a query's scan is expected to cost, by how it asked to be
+/// answered.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum ScanKind {
+    /// As the planner chooses: the neighbour graph's candidates over a
+    /// large eligible set, an exact pass over a small one.
+    Planned = 0,
+    /// The exact pass over every eligible keyframe, whatever their number
+    /// (`exact` on the query, or `vpr.exact`).
+    Exact = 1,
+}
 
 /// The shared admission state.
 #[derive(Debug)]
@@ -26,8 +45,11 @@ pub struct QueryAdmission {
     concurrent: usize,
     /// Queries waiting for a slot.
     waiting: AtomicUsize,
-    /// Recent scan time, an exponentially weighted mean, in microseconds.
-    scan_micros: AtomicU64,
+    /// Queries running or waiting, per [`ScanKind`].
+    queued: [AtomicUsize; 2],
+    /// Recent scan time per [`ScanKind`], an exponentially weighted mean,
+    /// in microseconds (0: none yet).
+    scan_micros: [AtomicU64; 2],
     budget: Duration,
 }
 
@@ -51,14 +73,28 @@ pub struct Busy {
 /// the next query in.
 #[derive(Debug)]
 pub struct ScanSlot {
-    admission: Arc<QueryAdmission>,
     started: Instant,
     _permit: OwnedSemaphorePermit,
+    queued: Queued,
 }
 
 impl Drop for ScanSlot {
     fn drop(&mut self) {
-        self.admission.record(self.started.elapsed());
+        let queued = &self.queued;
+        queued.admission.record(queued.kind, self.started.elapsed());
+    }
+}
+
+/// A query counted among those running or waiting, until dropped.
+#[derive(Debug)]
+struct Queued {
+    admission: Arc<QueryAdmission>,
+    kind: ScanKind,
+}
+
+impl Drop for Queued {
+    fn drop(&mut self) {
+        self.admission.queued[self.kind as usize].fetch_sub(1, Ordering::Relaxed);
     }
 }
 
@@ -81,22 +117,47 @@ impl QueryAdmission {
             slots: Arc::new(Semaphore::new(concurrent)),
             concurrent,
             waiting: AtomicUsize::new(0),
-            scan_micros: AtomicU64::new(0),
+            queued: [AtomicUsize::new(0), AtomicUsize::new(0)],
+            scan_micros: [AtomicU64::new(0), AtomicU64::new(0)],
             budget,
         })
     }
 
-    /// How long a query arriving now would wait for a slot.
-    fn expected_wait(&self, ahead: usize) -> Duration {
+    /// The recent scan time of `kind`; that of the other kind until one
+    /// of `kind` has run.
+    fn scan_time(&self, kind: ScanKind) -> u64 {
+        let mean = |k: usize| self.scan_micros[k].load(Ordering::Relaxed);
+        match mean(kind as usize) {
+            0 => mean(1 - kind as usize),
+            known => known,
+        }
+    }
+
+    /// The queries running or waiting now, and how long a query arriving
+    /// now would wait for a slot: the rounds of `concurrent` scans ahead
+    /// of it, each round as long as the mean scan ahead.
+    fn ahead(&self) -> (usize, Duration) {
+        let counts = self.queued.each_ref().map(|q| q.load(Ordering::Relaxed));
+        let ahead: usize = counts.iter().sum();
         let rounds = (ahead + 1)
             .saturating_sub(self.concurrent)
             .div_ceil(self.concurrent);
-        Duration::from_micros(self.scan_micros.load(Ordering::Relaxed) * rounds as u64)
+        if rounds == 0 {
+            return (ahead, Duration::ZERO);
+        }
+        let work: u64 = [ScanKind::Planned, ScanKind::Exact]
+            .iter()
+            .map(|&k| counts[k as usize] as u64 * self.scan_time(k))
+            .sum();
+        (
+            ahead,
+            Duration::from_micros(work / ahead as u64 * rounds as u64),
+        )
     }
 
-    /// Waits for a scan slot, or refuses at once when the query would have
-    /// to wait for one and could not be answered in time: when the
-    /// expected wait plus the recent scan time is longer than what is left
+    /// Waits for a scan slot for a scan of `kind`, or refuses at once when
+    /// the query would have to wait for one and could not be answered in
+    /// time: when the expected wait plus its kind's recent scan time is longer than what is left
     /// of the budget or of `deadline` (what the caller will wait), both
     /// counted from the query's arrival, `waited` ago (its turn behind its
     /// own robot's previous query and its perception count too). So an
@@ -104,13 +165,12 @@ impl QueryAdmission {
     /// start by then. A query that finds a slot free always runs.
     pub async fn admit(
         self: &Arc<Self>,
+        kind: ScanKind,
         waited: Duration,
         deadline: Option<Duration>,
     ) -> Result<ScanSlot, Busy> {
-        let running = self.concurrent - self.slots.available_permits();
-        let ahead = running + self.waiting.load(Ordering::Relaxed);
-        let scan = Duration::from_micros(self.scan_micros.load(Ordering::Relaxed));
-        let wait = self.expected_wait(ahead);
+        let (ahead, wait) = self.ahead();
+        let scan = Duration::from_micros(self.scan_time(kind));
         let expected = wait + scan;
         let budget = deadline
             .map_or(self.budget, |d| d.min(self.budget))
@@ -124,6 +184,11 @@ impl QueryAdmission {
                 budget,
             });
         }
+        self.queued[kind as usize].fetch_add(1, Ordering::Relaxed);
+        let queued = Queued {
+            admission: self.clone(),
+            kind,
+        };
         self.waiting.fetch_add(1, Ordering::Relaxed);
         let waiting = Waiting(&self.waiting);
         let permit = self
@@ -134,24 +199,26 @@ impl QueryAdmission {
             .expect("the admission semaphore is never closed");
         drop(waiting);
         Ok(ScanSlot {
-            admission: self.clone(),
             started: Instant::now(),
             _permit: permit,
+            queued,
         })
     }
 
-    /// Folds one scan's time into the recent mean (weight 1/4).
-    fn record(&self, took: Duration) {
+    /// Folds one scan's time into its kind's recent mean (weight 1/4).
+    fn record(&self, kind: ScanKind, took: Duration) {
         let took = took.as_micros().min(u128::from(u64::MAX)) as u64;
-        let _ = self
-            .scan_micros
-            .fetch_update(Ordering::Relaxed, Ordering::Relaxed, |mean| {
+        let _ = self.scan_micros[kind as usize].fetch_update(
+            Ordering::Relaxed,
+            Ordering::Relaxed,
+            |mean| {
                 Some(if mean == 0 {
                     took
                 } else {
                     (3 * mean + took) / 4
                 })
-            });
+            },
+        );
     }
 }
 
@@ -192,19 +259,29 @@ mod tests {
     async fn queries_that_could_not_be_answered_within_the_budget_are_refused_at_once() {
         let admission = QueryAdmission::new(1, Duration::from_millis(200));
         // Recent scans take 80 ms (the first time recorded is the mean).
-        admission.record(Duration::from_millis(80));
-        let running = admission.admit(Duration::ZERO, None).await.unwrap();
+        admission.record(ScanKind::Planned, Duration::from_millis(80));
+        let running = admission
+            .admit(ScanKind::Planned, Duration::ZERO, None)
+            .await
+            .unwrap();
         // One ahead: 80 ms to wait and 80 to scan, within 200 ms.
         let second = {
             let a = admission.clone();
-            tokio::spawn(async move { a.admit(Duration::ZERO, None).await.map(|_| ()) })
+            tokio::spawn(async move {
+                a.admit(ScanKind::Planned, Duration::ZERO, None)
+                    .await
+                    .map(|_| ())
+            })
         };
         tokio::task::yield_now().await;
         while admission.waiting.load(Ordering::Relaxed) == 0 {
             tokio::task::yield_now().await;
         }
         // Two ahead: 160 + 80 ms > 200 ms: refused, saying why.
-        let busy = admission.admit(Duration::ZERO, None).await.unwrap_err();
+        let busy = admission
+            .admit(ScanKind::Planned, Duration::ZERO, None)
+            .await
+            .unwrap_err();
         assert_eq!(busy.ahead, 2);
         assert!(busy.expected >= Duration::from_millis(230), "{busy:?}");
         assert!(busy.to_string().contains("retry after"));
@@ -214,39 +291,125 @@ mod tests {
         // turn; with the slot free, both run.
         drop(running);
         second.await.unwrap().unwrap();
-        let running = admission.admit(Duration::ZERO, None).await.unwrap();
+        let running = admission
+            .admit(ScanKind::Planned, Duration::ZERO, None)
+            .await
+            .unwrap();
         let short = admission
-            .admit(Duration::ZERO, Some(Duration::from_millis(20)))
+            .admit(
+                ScanKind::Planned,
+                Duration::ZERO,
+                Some(Duration::from_millis(20)),
+            )
             .await
             .unwrap_err();
         assert_eq!(short.budget, Duration::from_millis(20));
         let late = admission
-            .admit(Duration::from_millis(190), None)
+            .admit(ScanKind::Planned, Duration::from_millis(190), None)
             .await
             .unwrap_err();
         assert_eq!(late.budget, Duration::from_millis(10));
         drop(running);
         drop(
             admission
-                .admit(Duration::ZERO, Some(Duration::from_millis(20)))
+                .admit(
+                    ScanKind::Planned,
+                    Duration::ZERO,
+                    Some(Duration::from_millis(20)),
+                )
                 .await
                 .unwrap(),
         );
         drop(
             admission
-                .admit(Duration::from_millis(190), None)
+                .admit(ScanKind::Planned, Duration::from_millis(190), None)
                 .await
                 .unwrap(),
         );
         // The waiting count returns to zero when a waiter gives up.
-        let hold = admission.admit(Duration::ZERO, None).await.unwrap();
+        let hold = admission
+            .admit(ScanKind::Planned, Duration::ZERO, None)
+            .await
+            .unwrap();
         let gave_up = tokio::time::timeout(
             Duration::from_millis(10),
-            admission.admit(Duration::ZERO, None),
+            admission.admit(ScanKind::Planned, Duration::ZERO, None),
         )
         .await;
         assert!(gave_up.is_err());
         assert_eq!(admission.waiting.load(Ordering::Relaxed), 0);
         drop(hold);
+    }
+
+    #[tokio::test]
+    async fn a_slow_exact_scan_does_not_make_quick_queries_look_slow() {
+        let admission = QueryAdmission::new(1, Duration::from_millis(250));
+        admission.record(ScanKind::Planned, Duration::from_millis(5));
+        // An exact pass over a large store: 600 ms.
+        admission.record(ScanKind::Exact, Duration::from_millis(600));
+        let running = admission
+            .admit(ScanKind::Planned, Duration::ZERO, None)
+            .await
+            .unwrap();
+        // One quick scan ahead: 5 + 5 ms, admitted.
+        let quick = {
+            let a = admission.clone();
+            tokio::spawn(async move {
+                a.admit(ScanKind::Planned, Duration::ZERO, None)
+                    .await
+                    .map(|_| ())
+            })
+        };
+        while admission.waiting.load(Ordering::Relaxed) == 0 {
+            tokio::task::yield_now().await;
+        }
+        // An exact query behind two quick ones would take 610 ms: refused,
+        // its own kind's time counted.
+        let busy = admission
+            .admit(ScanKind::Exact, Duration::ZERO, None)
+            .await
+            .unwrap_err();
+        assert_eq!(busy.ahead, 2);
+        assert!(busy.expected >= Duration::from_millis(600), "{busy:?}");
+        drop(running);
+        quick.await.unwrap().unwrap();
+        // With an exact scan running, a quick query expects its 600 ms.
+        let exact = admission
+            .admit(ScanKind::Exact, Duration::ZERO, None)
+            .await
+            .unwrap();
+        let behind = admission
+            .admit(ScanKind::Planned, Duration::ZERO, None)
+            .await
+            .unwrap_err();
+        assert!(behind.expected >= Duration::from_millis(600), "{behind:?}");
+        drop(exact);
+        assert_eq!(
+            admission.queued[ScanKind::Exact as usize].load(Ordering::Relaxed),
+            0
+        );
+        // Once it is done, quick queries behind quick ones are admitted
+        // again: the exact scan's time is not in their mean.
+        let running = admission
+            .admit(ScanKind::Planned, Duration::ZERO, None)
+            .await
+            .unwrap();
+        let next = {
+            let a = admission.clone();
+            tokio::spawn(async move {
+                a.admit(ScanKind::Planned, Duration::ZERO, None)
+                    .await
+                    .map(|_| ())
+            })
+        };
+        while admission.waiting.load(Ordering::Relaxed) == 0 {
+            tokio::task::yield_now().await;
+        }
+        drop(running);
+        next.await.unwrap().unwrap();
+        assert_eq!(
+            admission.queued[ScanKind::Planned as usize].load(Ordering::Relaxed),
+            0
+        );
     }
 }

@@ -30,7 +30,7 @@ use humem_perception::{Perception, PerceptionError};
 use humem_store::{Mutation, MutationOutcome, Store, StoreError};
 
 use crate::metrics;
-use admission::{Busy, QueryAdmission};
+use admission::{Busy, QueryAdmission, ScanKind};
 use latest_wins::{Admission, LatestWins, SlotKey};
 use query::{QueryError, QueryOutcome};
 use request::{InvalidField, Observation, PendingKeyframe, QuerySpec};
@@ -314,9 +314,14 @@ impl Pipeline {
             spec.observation = Some(Observation::Features(features));
             perception_timings = timings;
         }
+        let scan_kind = if spec.exact || self.params.exact {
+            ScanKind::Exact
+        } else {
+            ScanKind::Planned
+        };
         let scan_slot = self
             .admission
-            .admit(arrived.elapsed(), deadline)
+            .admit(scan_kind, arrived.elapsed(), deadline)
             .await
             .inspect_err(|busy| {
                 tracing::debug!(%busy, "query refused");
