@@ -256,7 +256,12 @@ proptest! {
         );
         // Always the graph's candidates: only eligible rows, each scored
         // as the full pass scores it.
-        let approximate = VprParams { top_k: k, approximate_from: 0, ..VprParams::default() };
+        let approximate = VprParams {
+            top_k: k,
+            approximate_from: 0,
+            approximate_min_share: 0.0,
+            ..VprParams::default()
+        };
         let found = scal_scan(&approximate, &query, &with_graph, &filter);
         for hit in &found.hits {
             prop_assert!(filter.test(hit.row), "row {} is not eligible", hit.row);
@@ -306,6 +311,7 @@ fn the_graphs_candidates_find_the_exact_best_match_of_a_revisited_place() {
     let exact = VprParams::default();
     let approximate = VprParams {
         approximate_from: 0,
+        approximate_min_share: 0.0,
         ..VprParams::default()
     };
     let mut same = 0;

@@ -247,6 +247,7 @@ fn measure_scope(
     for &candidates in &args.candidates {
         let params = VprParams {
             approximate_from: 0,
+            approximate_min_share: 0.0,
             approximate_candidates: candidates,
             ..config.vpr.clone()
         };

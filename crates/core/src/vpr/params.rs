@@ -61,6 +61,13 @@ pub struct VprParams {
     /// graph, where it keeps one, instead of a pass over all of them
     /// ([`super::scan`]); below it the pass is exact.
     pub approximate_from: usize,
+    /// The smallest share of the stored keyframes a query's eligible ones
+    /// must be for the neighbour graph to propose its candidates. The
+    /// graph's walk is filtered: a selective filter (one robot's map of a
+    /// large fleet's store) makes it visit many keyframes for each one it
+    /// may propose, and an exact pass over the eligible keyframes' own
+    /// partition costs less (`humem bench graph --scopes one-robot`).
+    pub approximate_min_share: f32,
     /// Candidates the neighbour graph proposes; each is scored exactly
     /// and the best `top_k` go on. More find the exact answer more often
     /// and cost more.
@@ -180,6 +187,13 @@ pub enum TemporalMode {
 /// query over any one robot's map of up to that many keyframes.
 pub const APPROXIMATE_FROM: usize = 20_000;
 
+/// Default of [`VprParams::approximate_min_share`]: at a million
+/// keyframes × 1280 values, a loop query over one robot's map of 31 000
+/// (3 % of the store) through the graph took about twice what the exact
+/// pass over that map took, under a fleet's load; by the costs measured
+/// there the two meet near 5 %.
+pub const APPROXIMATE_MIN_SHARE: f32 = 1.0 / 16.0;
+
 /// Default of [`VprParams::approximate_candidates`].
 pub const APPROXIMATE_CANDIDATES: usize = 100;
 
@@ -194,6 +208,7 @@ impl Default for VprParams {
             scan: ScanMode::Auto,
             exact: false,
             approximate_from: APPROXIMATE_FROM,
+            approximate_min_share: APPROXIMATE_MIN_SHARE,
             approximate_candidates: APPROXIMATE_CANDIDATES,
             lambda_a: 1.0,
             sigma_m: 0.25,
@@ -272,6 +287,12 @@ impl VprParams {
         if self.approximate_candidates == 0 {
             return Err("approximate_candidates must be >= 1".to_string());
         }
+        finite_in(
+            "approximate_min_share",
+            self.approximate_min_share,
+            0.0,
+            1.0,
+        )?;
         non_negative("lambda_a", self.lambda_a)?;
         if !(self.sigma_m.is_finite() && self.sigma_m > 0.0) {
             return Err(format!("sigma_m must be > 0, got {}", self.sigma_m));

@@ -139,7 +139,7 @@ where
     } else {
         matrix.len()
     };
-    if let Some(admitted) = approximate_for(params, eligible) {
+    if let Some(admitted) = approximate_for(params, eligible, matrix.len()) {
         if let Some(scan) = approximate_scan(params, &side, memory, eligible, admitted) {
             return scan;
         }
@@ -153,10 +153,17 @@ where
 
 /// The planner: the eligible rows a query may be answered from, when they
 /// are enough for the neighbour graph's candidates to take the place of a
-/// full pass (`approximate_from`, not `exact`); None: a full pass.
-fn approximate_for<E: RowFilter + ?Sized>(params: &VprParams, eligible: &E) -> Option<usize> {
+/// full pass (`approximate_from`, not `exact`) and a large enough share of
+/// the `stored` rows for the graph's filtered walk to find them cheaply
+/// (`approximate_min_share`); None: a full pass.
+fn approximate_for<E: RowFilter + ?Sized>(
+    params: &VprParams,
+    eligible: &E,
+    stored: usize,
+) -> Option<usize> {
     let admitted = eligible.admitted()?;
-    (!params.exact && admitted >= params.approximate_from).then_some(admitted)
+    let share_enough = admitted as f64 >= f64::from(params.approximate_min_share) * stored as f64;
+    (!params.exact && admitted >= params.approximate_from && share_enough).then_some(admitted)
 }
 
 /// The approximate pass: the neighbour graph's `approximate_candidates`
@@ -651,6 +658,54 @@ mod tests {
     use crate::vpr::query_side::clip01_branchless;
     use crate::vpr::testing::{memory_strategy, scene_strategy, unit_vector};
     use proptest::prelude::*;
+
+    /// Admits `admitted` rows (the rows of the maps a query may see).
+    struct Admitting(usize);
+
+    impl RowFilter for Admitting {
+        fn test(&self, _row: usize) -> bool {
+            true
+        }
+
+        fn admitted(&self) -> Option<usize> {
+            Some(self.0)
+        }
+    }
+
+    #[test]
+    fn the_planner_walks_the_graph_only_for_a_large_share_of_a_large_store() {
+        let params = VprParams::default();
+        let from = params.approximate_from;
+        let stored = 1_000_000;
+        // A merge query over most of the store.
+        assert_eq!(
+            approximate_for(&params, &Admitting(950_000), stored),
+            Some(950_000)
+        );
+        // A loop query over one robot's map of 31 000 (3 %): a pass.
+        assert_eq!(approximate_for(&params, &Admitting(31_000), stored), None);
+        // A sixteenth of it is enough; fewer than `approximate_from` never.
+        assert_eq!(
+            approximate_for(&params, &Admitting(62_500), stored),
+            Some(62_500)
+        );
+        assert_eq!(approximate_for(&params, &Admitting(from - 1), from), None);
+        assert_eq!(approximate_for(&params, &Admitting(from), from), Some(from));
+        // The share rule off; exact on.
+        let any_share = VprParams {
+            approximate_min_share: 0.0,
+            ..params.clone()
+        };
+        assert_eq!(
+            approximate_for(&any_share, &Admitting(31_000), stored),
+            Some(31_000)
+        );
+        let exact = VprParams {
+            exact: true,
+            ..params
+        };
+        assert_eq!(approximate_for(&exact, &Admitting(950_000), stored), None);
+    }
 
     fn run(
         params: &VprParams,
