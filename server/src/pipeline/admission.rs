@@ -341,6 +341,23 @@ mod tests {
         drop(hold);
     }
 
+    /// A planned query admitted in a task of its own, once it waits for
+    /// its slot.
+    async fn quick_query_waiting(
+        admission: &Arc<QueryAdmission>,
+    ) -> tokio::task::JoinHandle<Result<(), Busy>> {
+        let a = admission.clone();
+        let task = tokio::spawn(async move {
+            a.admit(ScanKind::Planned, Duration::ZERO, None)
+                .await
+                .map(|_| ())
+        });
+        while admission.waiting.load(Ordering::Relaxed) == 0 {
+            tokio::task::yield_now().await;
+        }
+        task
+    }
+
     #[tokio::test]
     async fn a_slow_exact_scan_does_not_make_quick_queries_look_slow() {
         let admission = QueryAdmission::new(1, Duration::from_millis(250));
@@ -352,17 +369,7 @@ mod tests {
             .await
             .unwrap();
         // One quick scan ahead: 5 + 5 ms, admitted.
-        let quick = {
-            let a = admission.clone();
-            tokio::spawn(async move {
-                a.admit(ScanKind::Planned, Duration::ZERO, None)
-                    .await
-                    .map(|_| ())
-            })
-        };
-        while admission.waiting.load(Ordering::Relaxed) == 0 {
-            tokio::task::yield_now().await;
-        }
+        let quick = quick_query_waiting(&admission).await;
         // An exact query behind two quick ones would take 610 ms: refused,
         // its own kind's time counted.
         let busy = admission
@@ -394,17 +401,7 @@ mod tests {
             .admit(ScanKind::Planned, Duration::ZERO, None)
             .await
             .unwrap();
-        let next = {
-            let a = admission.clone();
-            tokio::spawn(async move {
-                a.admit(ScanKind::Planned, Duration::ZERO, None)
-                    .await
-                    .map(|_| ())
-            })
-        };
-        while admission.waiting.load(Ordering::Relaxed) == 0 {
-            tokio::task::yield_now().await;
-        }
+        let next = quick_query_waiting(&admission).await;
         drop(running);
         next.await.unwrap().unwrap();
         assert_eq!(

@@ -13,8 +13,9 @@
 //! ([`Index::keep_neighbour_graph`]): a small store is scanned exactly and
 //! would pay for it on every insert for nothing.
 //!
-//! Adding a row to the graph costs about a millisecond of one core at
-//! 1280 values, far more than storing it. The store therefore defers it
+//! Adding a row to the graph costs about a millisecond of one core at a
+//! million keyframes (rows shortened to 256 values), far more than
+//! storing it. The store therefore defers it
 //! ([`Index::defer_graph_inserts`]): a stored keyframe waits in a list
 //! that every search scores exactly, so it is found from the moment it is
 //! stored, and the store's writer adds the waiting rows under a shared
