@@ -132,10 +132,7 @@ pub fn graph(config: Config, args: GraphBench) -> anyhow::Result<()> {
         args.candidates.iter().all(|&c| c > 0),
         "--candidates must be at least 1"
     );
-    let one_core = rayon::ThreadPoolBuilder::new()
-        .num_threads(1)
-        .build()
-        .context("building a one-thread pool")?;
+    let one_core = one_core()?;
     let mut table = Vec::new();
     for (i, &rows) in args.rows.iter().enumerate() {
         for (j, &short) in args.short_lengths.iter().enumerate() {
@@ -145,6 +142,14 @@ pub fn graph(config: Config, args: GraphBench) -> anyhow::Result<()> {
     }
     print(&args, &table);
     Ok(())
+}
+
+/// A pool of one thread: each query's time on one core.
+fn one_core() -> anyhow::Result<rayon::ThreadPool> {
+    rayon::ThreadPoolBuilder::new()
+        .num_threads(1)
+        .build()
+        .context("building a one-thread pool")
 }
 
 fn measure(
@@ -436,10 +441,7 @@ mod tests {
             candidates: vec![50, 200],
             export: Some(dir.path().to_path_buf()),
         };
-        let pool = rayon::ThreadPoolBuilder::new()
-            .num_threads(1)
-            .build()
-            .unwrap();
+        let pool = one_core().unwrap();
         let m = measure(&Config::default(), &args, 3_000, 16, &pool, true).unwrap();
         assert_eq!(m.parts.len(), 1);
         assert_eq!(m.stored_length, 16);
@@ -475,10 +477,7 @@ mod tests {
             candidates: vec![200],
             export: None,
         };
-        let pool = rayon::ThreadPoolBuilder::new()
-            .num_threads(1)
-            .build()
-            .unwrap();
+        let pool = one_core().unwrap();
         let m = measure(&Config::default(), &args, 3_000, 0, &pool, false).unwrap();
         assert_eq!(m.stored_length, 32);
         let m = &m.parts[0];

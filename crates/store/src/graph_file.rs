@@ -116,7 +116,7 @@ pub(crate) fn attach(dir: &Path, index: &mut Index, short: usize) -> Option<Grap
     let started = Instant::now();
     let file = path(dir);
     let saved = if file.exists() && index.dim() > 0 {
-        match NeighbourGraph::load(&file, index.dim(), index.graph_short_length()) {
+        match NeighbourGraph::load(&file, index.dim(), short) {
             Ok(graph) => Some(graph),
             Err(e) => {
                 tracing::warn!(error = %e, "the saved neighbour graph is not used: rebuilding it");

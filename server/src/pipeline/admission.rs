@@ -43,8 +43,6 @@ pub enum ScanKind {
 pub struct QueryAdmission {
     slots: Arc<Semaphore>,
     concurrent: usize,
-    /// Queries waiting for a slot.
-    waiting: AtomicUsize,
     /// Queries running or waiting, per [`ScanKind`].
     queued: [AtomicUsize; 2],
     /// Recent scan time per [`ScanKind`], an exponentially weighted mean,
@@ -74,8 +72,9 @@ pub struct Busy {
 #[derive(Debug)]
 pub struct ScanSlot {
     started: Instant,
-    _permit: OwnedSemaphorePermit,
+    // Uncounted before the slot is let go (fields drop in this order).
     queued: Queued,
+    _permit: OwnedSemaphorePermit,
 }
 
 impl Drop for ScanSlot {
@@ -98,16 +97,6 @@ impl Drop for Queued {
     }
 }
 
-/// Decrements the waiting count however the wait ends (a caller that goes
-/// away drops the future).
-struct Waiting<'a>(&'a AtomicUsize);
-
-impl Drop for Waiting<'_> {
-    fn drop(&mut self) {
-        self.0.fetch_sub(1, Ordering::Relaxed);
-    }
-}
-
 impl QueryAdmission {
     /// At most `concurrent` (≥ 1) scans at once; queries wait at most
     /// `budget` for theirs.
@@ -116,7 +105,6 @@ impl QueryAdmission {
         Arc::new(QueryAdmission {
             slots: Arc::new(Semaphore::new(concurrent)),
             concurrent,
-            waiting: AtomicUsize::new(0),
             queued: [AtomicUsize::new(0), AtomicUsize::new(0)],
             scan_micros: [AtomicU64::new(0), AtomicU64::new(0)],
             budget,
@@ -185,24 +173,31 @@ impl QueryAdmission {
             });
         }
         self.queued[kind as usize].fetch_add(1, Ordering::Relaxed);
+        // Uncounted however the wait ends (a caller that goes away drops
+        // the future).
         let queued = Queued {
             admission: self.clone(),
             kind,
         };
-        self.waiting.fetch_add(1, Ordering::Relaxed);
-        let waiting = Waiting(&self.waiting);
         let permit = self
             .slots
             .clone()
             .acquire_owned()
             .await
             .expect("the admission semaphore is never closed");
-        drop(waiting);
         Ok(ScanSlot {
             started: Instant::now(),
-            _permit: permit,
             queued,
+            _permit: permit,
         })
+    }
+
+    /// Queries waiting for a slot: those counted, less those running.
+    #[cfg(test)]
+    fn waiting(&self) -> usize {
+        let queued: usize = self.queued.iter().map(|q| q.load(Ordering::Relaxed)).sum();
+        let running = self.concurrent - self.slots.available_permits();
+        queued.saturating_sub(running)
     }
 
     /// Folds one scan's time into its kind's recent mean (weight 1/4).
@@ -274,7 +269,7 @@ mod tests {
             })
         };
         tokio::task::yield_now().await;
-        while admission.waiting.load(Ordering::Relaxed) == 0 {
+        while admission.waiting() == 0 {
             tokio::task::yield_now().await;
         }
         // Two ahead: 160 + 80 ms > 200 ms: refused, saying why.
@@ -337,7 +332,7 @@ mod tests {
         )
         .await;
         assert!(gave_up.is_err());
-        assert_eq!(admission.waiting.load(Ordering::Relaxed), 0);
+        assert_eq!(admission.waiting(), 0);
         drop(hold);
     }
 
@@ -352,7 +347,7 @@ mod tests {
                 .await
                 .map(|_| ())
         });
-        while admission.waiting.load(Ordering::Relaxed) == 0 {
+        while admission.waiting() == 0 {
             tokio::task::yield_now().await;
         }
         task

@@ -77,11 +77,6 @@ impl Projection {
         Projection { dim, rows }
     }
 
-    /// Length of the descriptors it takes.
-    pub fn input_dim(&self) -> usize {
-        self.dim
-    }
-
     /// Length of the vectors it gives.
     pub fn output_dim(&self) -> usize {
         self.rows.len() / self.dim.max(1)
@@ -105,7 +100,7 @@ mod tests {
     #[test]
     fn the_basis_is_orthonormal() {
         let p = Projection::new(96, 32);
-        assert_eq!((p.input_dim(), p.output_dim()), (96, 32));
+        assert_eq!((p.dim, p.output_dim()), (96, 32));
         for i in 0..32 {
             for j in 0..32 {
                 let d = dot(&p.rows[i * 96..(i + 1) * 96], &p.rows[j * 96..(j + 1) * 96]);

@@ -120,12 +120,6 @@ impl Index {
         self.graph_short = short;
     }
 
-    /// Length a graph started now would store rows at (to load a saved
-    /// one made alike).
-    pub fn graph_short_length(&self) -> usize {
-        self.graph_short
-    }
-
     /// The neighbour graph, if one is kept (to read its size).
     pub fn neighbour_graph(&self) -> Option<&NeighbourGraph> {
         self.neighbours.as_ref().map(|n| &n.graph)
