@@ -267,7 +267,13 @@ load burst --robots 2 --rate 25 --duration 2 --images "$TMP/images" --query-cont
 sleep 5
 load wrong-dim --robots 1 --rate 5 --duration 2 --dim 64
 for pid in "${LOADS[@]}"; do wait "$pid" || die "humem load failed: $(cat "$TMP"/load-*.txt)"; done
-for name in synthetic images burst wrong-dim; do
+# Then a quiet client whose image queries find the images stored above, so
+# that answered queries and returned candidates are in the last minute
+# however slowly the contended loads were served (a debug build on 2 cores
+# supersedes most of their queries).
+"$BIN" load --server "$URL" --robots 1 --rate 0.5 --duration 6 --images "$TMP/images" --query-content \
+    >"$TMP/load-answered.txt" 2>&1 || die "humem load failed: $(cat "$TMP"/load-answered.txt)"
+for name in synthetic images burst wrong-dim answered; do
     echo "-- humem load ($name)"
     grep -v '^$' "$TMP/load-$name.txt" | sed 's/^/   /'
 done
