@@ -216,6 +216,13 @@ pub struct StoreConfig {
     /// often it proposes the exact answer. A saved graph of another
     /// length is rebuilt at start.
     pub neighbour_graph_length: usize,
+    /// With `neighbour_graph`, give every map of `vpr.approximate_from`
+    /// keyframes or more a graph of its own as well, which a loop query
+    /// over that one map walks instead of an exact pass over it (a few
+    /// hundred more bytes a keyframe of such maps, and a second insert).
+    /// Not saved: rebuilt in the background at start, loop queries taking
+    /// the exact pass meanwhile.
+    pub map_graphs: bool,
 }
 
 /// Where the index keeps its f32 descriptors (`store.descriptors`).
@@ -272,6 +279,7 @@ impl Default for StoreConfig {
             cache_bytes: humem_store::DEFAULT_CACHE_BYTES,
             neighbour_graph: true,
             neighbour_graph_length: humem_core::engine::graph::SHORT_LENGTH,
+            map_graphs: true,
         }
     }
 }

@@ -92,6 +92,11 @@ async fn open(
         cache_bytes: config.store.cache_bytes,
         neighbour_graph: config.store.neighbour_graph,
         neighbour_graph_length: config.store.neighbour_graph_length,
+        map_graphs_from: if config.store.map_graphs && !config.vpr.exact {
+            config.vpr.approximate_from
+        } else {
+            0
+        },
     };
     // Cluster mode: a store the write log no longer reaches (new, or away
     // longer than the log keeps entries) starts from the newest snapshot.

@@ -617,6 +617,14 @@ class NeighbourGraphStats:
     approximate_from: int
     #: Of ``keyframes``, those still waiting to enter the graph (scored exactly meanwhile).
     waiting: int = 0
+    #: Maps with a graph of their own, walked by loop queries over one of them.
+    map_graphs: int = 0
+    #: Keyframes in the maps' graphs.
+    map_graph_keyframes: int = 0
+    #: Memory the maps' graphs hold, in bytes.
+    map_graph_memory_bytes: int = 0
+    #: Keyframes waiting to enter their map's graph (their loop queries are exact meanwhile).
+    map_graph_waiting: int = 0
 
 
 @dataclass(frozen=True)

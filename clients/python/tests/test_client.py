@@ -103,6 +103,8 @@ class ClientTest(unittest.TestCase):
         self.assertIsNotNone(stats.neighbour_graph)
         self.assertEqual((stats.neighbour_graph.keyframes, stats.neighbour_graph.missing), (6, 0))
         self.assertFalse(stats.neighbour_graph.loaded)
+        # Six keyframes: no map is large enough for a graph of its own.
+        self.assertEqual((stats.neighbour_graph.map_graphs, stats.neighbour_graph.map_graph_waiting), (0, 0))
 
         moved = self.client.update_poses([hc.PoseUpdate(keyframe_id=2, pose=hc.Pose(translation=[9, 9, 9]), map_id=5),
                                           hc.PoseUpdate(keyframe_id=77, pose=hc.Pose())])

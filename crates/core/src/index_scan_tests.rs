@@ -182,6 +182,8 @@ fn index_of(rows: Vec<StoredRow>, graph: Option<usize>) -> Index {
     let mut index = Index::new(6);
     if graph.is_some() {
         index.keep_neighbour_graph(None).unwrap();
+        // Every map its own graph too.
+        index.keep_map_graphs(1);
     }
     let deferred_from = rows.len().saturating_sub(graph.unwrap_or(0));
     for (i, (robot, session, map, id, descriptor, scene)) in rows.into_iter().enumerate() {
@@ -275,6 +277,21 @@ proptest! {
             }
         }
         prop_assert!(found.hits.len() <= reference.hits.len());
+        // A map's own graph where the query may see one map, else a full
+        // pass: still only eligible rows, each scored as the full pass
+        // scores it.
+        let by_map = VprParams { approximate_min_share: 2.0, ..approximate.clone() };
+        let found = scal_scan(&by_map, &query, &with_graph, &filter);
+        for hit in &found.hits {
+            prop_assert!(filter.test(hit.row), "row {} is not eligible", hit.row);
+            let key = &with_graph.meta(hit.row).key;
+            if let Some(same) = reference.hits.iter().find(|h| &without.meta(h.row).key == key) {
+                prop_assert_eq!(same.score.to_bits(), hit.score.to_bits());
+            }
+        }
+        if filter.group().is_none() {
+            assert_same_bits(&found, &reference)?;
+        }
         // A full pass: below the switch point, for an exact query, or with
         // `vpr.exact`.
         let below = VprParams { top_k: k, approximate_from: usize::MAX, ..VprParams::default() };
@@ -286,6 +303,9 @@ proptest! {
         drop(filter);
         with_graph.flush_graph_inserts();
         prop_assert_eq!(with_graph.neighbour_graph().unwrap().len(), with_graph.len() - with_graph.neighbour_graph_missing());
+        prop_assert_eq!(with_graph.neighbour_graph_waiting(), 0);
+        let (_, map_rows, _) = with_graph.map_graphs();
+        prop_assert_eq!(map_rows, with_graph.len() - with_graph.neighbour_graph_missing());
     }
 }
 
@@ -473,4 +493,175 @@ fn a_graph_mostly_waiting_leaves_queries_to_a_full_pass() {
     assert!(index.nearest_rows(&query, 5, &|_| true).is_none());
     index.flush_graph_inserts();
     assert_eq!(index.nearest_rows(&query, 1, &|_| true).unwrap(), vec![7]);
+}
+
+#[test]
+fn a_loop_query_over_a_large_map_walks_that_maps_own_graph() {
+    use crate::synthetic::{place_descriptor, place_of, Rng};
+    let dim = 64;
+    let mut noise = Rng::new(12);
+    let mut index = Index::new(dim);
+    index.keep_neighbour_graph(None).unwrap();
+    index.keep_map_graphs(1_000);
+    // Four robots pass 500 places in runs of four keyframes, each in its
+    // own map; robot 3's map stays under the size that gets a graph.
+    for robot in 0..4 {
+        let stored = if robot == 3 { 600 } else { 1_500u64 };
+        for id in 0..stored {
+            let features = Features {
+                descriptor: place_descriptor(dim, place_of(500, robot as u64, id), &mut noise),
+                ..Features::default()
+            };
+            index.upsert(keyframe(robot, 0, 0, id, features));
+        }
+    }
+    assert_eq!(index.map_graphs().0, 3);
+    assert_eq!(index.map_graphs().1, 4_500);
+    // The store's graph only for a large share: a map (a quarter of the
+    // store) takes its own.
+    let by_map = VprParams {
+        approximate_from: 1_000,
+        approximate_min_share: 0.5,
+        ..VprParams::default()
+    };
+    let context = |robot: usize| QueryContext {
+        session: SessionKey {
+            robot_id: ROBOTS[robot].into(),
+            session_id: SESSIONS[0].into(),
+        },
+        keyframe_id: None,
+        frame_id: 0,
+        map_id: 0,
+        min_frame_gap: 0,
+        scope: Scope::SameMap,
+        readable_robots: None,
+    };
+    let (mut same, queries) = (0, 150);
+    for q in 0..queries {
+        let robot = (q % 3) as usize;
+        let history = [Features {
+            descriptor: place_descriptor(dim, q * 7 % 500, &mut noise),
+            ..Features::default()
+        }];
+        let query = ScalQuery {
+            history: history.iter().collect(),
+        };
+        let filter = index.eligibility(&context(robot));
+        assert!(filter.group().is_some());
+        let group = filter.group().unwrap();
+        let proposed = index
+            .nearest_rows_of_map(&history[0].descriptor, 100, group, &|r| filter.test(r))
+            .expect("the map keeps a graph");
+        assert!(proposed
+            .iter()
+            .all(|&r| index.meta(r).key.robot_id == ROBOTS[robot]));
+        let a = scal_scan(&by_map, &query, &index, &filter);
+        let e = scal_scan(&VprParams::default(), &query, &index, &filter);
+        assert_eq!(a.eligible, 1_500);
+        assert!(a.hits.iter().all(|h| filter.test(h.row)));
+        same += usize::from(a.hits.first().map(|h| h.row) == e.hits.first().map(|h| h.row));
+    }
+    assert!(same >= queries as usize * 97 / 100, "{same} of {queries}");
+    // The small map has no graph of its own: its loop query is the exact
+    // pass, bit for bit.
+    let filter = index.eligibility(&context(3));
+    let group = filter.group().unwrap();
+    assert!(index
+        .nearest_rows_of_map(&[0.0; 64], 10, group, &|_| true)
+        .is_none());
+    let history = [Features {
+        descriptor: place_descriptor(dim, 3, &mut noise),
+        ..Features::default()
+    }];
+    let query = ScalQuery {
+        history: history.iter().collect(),
+    };
+    let a = scal_scan(&by_map, &query, &index, &filter);
+    let e = scal_scan(&VprParams::default(), &query, &index, &filter);
+    assert_eq!(
+        a.hits
+            .iter()
+            .map(|h| (h.row, h.score.to_bits()))
+            .collect::<Vec<_>>(),
+        e.hits
+            .iter()
+            .map(|h| (h.row, h.score.to_bits()))
+            .collect::<Vec<_>>()
+    );
+}
+
+#[test]
+fn a_maps_graph_starts_when_the_map_grows_large_and_follows_its_keyframes() {
+    let mut index = Index::new(6);
+    index.keep_neighbour_graph(None).unwrap();
+    index.keep_map_graphs(20);
+    index.defer_graph_inserts();
+    let mut noise = crate::synthetic::Rng::new(5);
+    let mut store = |index: &mut Index, robot: usize, map: u64, id: u64| {
+        let descriptor = crate::synthetic::place_descriptor(6, id, &mut noise);
+        index.upsert(keyframe(
+            robot,
+            0,
+            map,
+            id,
+            Features {
+                descriptor,
+                ..Features::default()
+            },
+        ));
+    };
+    for id in 0..19 {
+        store(&mut index, 0, 0, id);
+    }
+    assert_eq!(index.map_graphs().0, 0);
+    // The twentieth keyframe starts the map's graph, every row waiting.
+    store(&mut index, 0, 0, 19);
+    assert_eq!(index.map_graphs(), (1, 0, index.map_graphs().2));
+    assert_eq!(index.neighbour_graph_waiting(), 20 + 20);
+    let group = index
+        .eligibility(&QueryContext {
+            session: SessionKey {
+                robot_id: ROBOTS[0].into(),
+                session_id: SESSIONS[0].into(),
+            },
+            keyframe_id: None,
+            frame_id: 0,
+            map_id: 0,
+            min_frame_gap: 0,
+            scope: Scope::SameMap,
+            readable_robots: None,
+        })
+        .group()
+        .unwrap();
+    // Mostly waiting: the exact pass.
+    assert!(index
+        .nearest_rows_of_map(&[1.0, 0.0, 0.0, 0.0, 0.0, 0.0], 1, group, &|_| true)
+        .is_none());
+    index.flush_graph_inserts();
+    assert_eq!(index.map_graphs().1, 20);
+    assert_eq!(index.neighbour_graph_waiting(), 0);
+    // Another robot's keyframes never enter it.
+    for id in 0..5 {
+        store(&mut index, 1, 0, id);
+    }
+    index.flush_graph_inserts();
+    assert_eq!(index.map_graphs().1, 20);
+    // A keyframe erased leaves it; one stored again in another map (a
+    // merge renumbers maps) moves to that map, which has no graph.
+    let key = |id: u64| KeyframeKey {
+        robot_id: ROBOTS[0].into(),
+        session_id: SESSIONS[0].into(),
+        keyframe_id: id,
+    };
+    index.remove(&key(3));
+    store(&mut index, 0, 1, 4);
+    index.flush_graph_inserts();
+    assert_eq!(index.map_graphs().1, 18);
+    let everything = index
+        .nearest_rows_of_map(&[1.0, 0.0, 0.0, 0.0, 0.0, 0.0], 100, group, &|_| true)
+        .unwrap();
+    assert_eq!(everything.len(), 18);
+    assert!(everything
+        .iter()
+        .all(|&r| index.meta(r).map_id == 0 && index.meta(r).key.robot_id == ROBOTS[0]));
 }

@@ -21,6 +21,7 @@ use std::time::{Duration, Instant};
 
 use anyhow::{ensure, Context};
 
+use humem_core::engine::filter::RowFilter;
 use humem_core::engine::kernels::dot_f32_wide;
 use humem_core::index::Index;
 use humem_core::keyframe::{Features, SessionKey};
@@ -58,6 +59,12 @@ pub struct GraphBench {
     /// `1/robots` share of the store, walked with a selective filter).
     #[arg(long, value_enum, value_delimiter = ',', default_values_t = [BenchScope::OtherMaps])]
     pub scopes: Vec<BenchScope>,
+    /// Gives every robot's map a graph of its own as well (as the server
+    /// does for maps of `vpr.approximate_from` keyframes or more), so that
+    /// `--scopes one-robot` walks that graph instead of filtering the
+    /// store's.
+    #[arg(long)]
+    pub map_graphs: bool,
     /// Candidates the graph proposes, one row of the table each.
     #[arg(long, value_delimiter = ',', default_values_t = [25, 50, 100, 200, 400])]
     pub candidates: Vec<usize>,
@@ -87,6 +94,8 @@ struct Measured {
     stored_length: usize,
     build: Duration,
     graph_bytes: usize,
+    /// The maps' own graphs (`--map-graphs`): built in, bytes.
+    map_graphs: Option<(Duration, usize)>,
     /// One per `--scopes`.
     parts: Vec<ScopePart>,
 }
@@ -175,6 +184,14 @@ fn measure(
     index.keep_neighbour_graph(None)?;
     let build = started.elapsed();
     let graph_bytes = index.neighbour_graph().map_or(0, |g| g.memory_bytes());
+    let map_graphs = if args.map_graphs {
+        eprintln!("building every map's own graph …");
+        let started = Instant::now();
+        index.keep_map_graphs(1);
+        Some((started.elapsed(), index.map_graphs().2))
+    } else {
+        None
+    };
     let stored_length = index
         .neighbour_graph()
         .map_or(args.dim, |g| g.stored_length());
@@ -195,6 +212,7 @@ fn measure(
         stored_length,
         build,
         graph_bytes,
+        map_graphs,
         parts,
     })
 }
@@ -250,12 +268,21 @@ fn measure_scope(
         .collect();
     let mut curves = Vec::new();
     for &candidates in &args.candidates {
+        // The store's graph for any share, unless the maps have graphs of
+        // their own: then as the server plans.
         let params = VprParams {
             approximate_from: 0,
-            approximate_min_share: 0.0,
+            approximate_min_share: if args.map_graphs {
+                config.vpr.approximate_min_share
+            } else {
+                0.0
+            },
             approximate_candidates: candidates,
             ..config.vpr.clone()
         };
+        let own_map = filter
+            .group()
+            .filter(|_| args.map_graphs && scope == BenchScope::OneRobot);
         let (mut times, mut top1, mut top5) = (Vec::new(), 0usize, 0usize);
         let (mut null_shift, mut margin) = (Vec::new(), Vec::new());
         for (q, (_, exact)) in queries.iter().zip(&reference) {
@@ -277,9 +304,11 @@ fn measure_scope(
         let (mut search_times, mut search_top1) = (Vec::new(), 0usize);
         for (q, &want) in queries.iter().zip(&truth) {
             let started = Instant::now();
-            let found = index
-                .nearest_rows(&q.descriptor, candidates, &kept)
-                .unwrap_or_default();
+            let found = match own_map {
+                Some(group) => index.nearest_rows_of_map(&q.descriptor, candidates, group, &kept),
+                None => index.nearest_rows(&q.descriptor, candidates, &kept),
+            }
+            .unwrap_or_default();
             let best = found
                 .into_iter()
                 .map(|row| (dot_f32_wide(&q.descriptor, &index.descriptor(row)), row))
@@ -394,12 +423,21 @@ fn print(args: &GraphBench, table: &[Measured]) {
             rayon::current_num_threads(),
             m.graph_bytes as f64 / m.rows.max(1) as f64,
         );
+        if let Some((built, bytes)) = m.map_graphs {
+            println!(
+                "each robot's map a graph of its own as well: built in {:.1} s, {:.0} bytes a keyframe",
+                built.as_secs_f64(),
+                bytes as f64 / m.rows.max(1) as f64,
+            );
+        }
         for part in &m.parts {
             println!();
             println!(
                 "queries over {}: exact SCAL pass {:.2} ms",
                 match part.scope {
                     BenchScope::OtherMaps => "every other map",
+                    BenchScope::OneRobot if m.map_graphs.is_some() =>
+                        "one robot's map, through its own graph",
                     BenchScope::OneRobot => "one robot's map",
                 },
                 part.exact_ms
@@ -439,6 +477,7 @@ mod tests {
             short_lengths: vec![16],
             scopes: vec![BenchScope::OtherMaps],
             candidates: vec![50, 200],
+            map_graphs: false,
             export: Some(dir.path().to_path_buf()),
         };
         let pool = one_core().unwrap();
@@ -475,13 +514,43 @@ mod tests {
             short_lengths: vec![0],
             scopes: vec![BenchScope::OneRobot],
             candidates: vec![200],
+            map_graphs: false,
             export: None,
         };
         let pool = one_core().unwrap();
         let m = measure(&Config::default(), &args, 3_000, 0, &pool, false).unwrap();
         assert_eq!(m.stored_length, 32);
+        assert!(m.map_graphs.is_none());
         let m = &m.parts[0];
         // A quarter of the store: 200 candidates find its best nearly always.
+        assert!(m.curves[0].scal_top1 >= 0.9, "{}", m.curves[0].scal_top1);
+        assert!(
+            m.curves[0].search_top1 >= 0.9,
+            "{}",
+            m.curves[0].search_top1
+        );
+    }
+
+    #[test]
+    fn queries_over_one_robots_map_walk_its_own_graph_where_it_has_one() {
+        // 16 robots: one robot's map is under the share the store's graph
+        // is walked for.
+        let args = GraphBench {
+            rows: vec![8_000],
+            dim: 32,
+            queries: 20,
+            robots: 32,
+            short_lengths: vec![0],
+            scopes: vec![BenchScope::OneRobot],
+            candidates: vec![100],
+            map_graphs: true,
+            export: None,
+        };
+        let pool = one_core().unwrap();
+        let m = measure(&Config::default(), &args, 8_000, 0, &pool, false).unwrap();
+        let (_, bytes) = m.map_graphs.expect("map graphs were asked for");
+        assert!(bytes > 0);
+        let m = &m.parts[0];
         assert!(m.curves[0].scal_top1 >= 0.9, "{}", m.curves[0].scal_top1);
         assert!(
             m.curves[0].search_top1 >= 0.9,

@@ -295,6 +295,9 @@ fn keep_graph_as_the_server_would(
         index
             .keep_neighbour_graph(None)
             .context("starting the neighbour graph")?;
+        if config.store.map_graphs {
+            index.keep_map_graphs(config.vpr.approximate_from);
+        }
     }
     Ok(())
 }

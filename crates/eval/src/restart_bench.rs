@@ -96,6 +96,11 @@ fn options(neighbour_graph: bool) -> StoreOptions {
         snapshot_every: 0,
         descriptors_to_file: auto.descriptors_to_file(humem_core::vpr::params::ScanMode::Auto),
         neighbour_graph,
+        map_graphs_from: if neighbour_graph {
+            humem_core::vpr::params::APPROXIMATE_FROM
+        } else {
+            0
+        },
         ..StoreOptions::default()
     }
 }

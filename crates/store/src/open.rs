@@ -83,6 +83,7 @@ pub(crate) fn open(
         cache_bytes,
         neighbour_graph,
         neighbour_graph_length,
+        map_graphs_from,
     } = options;
     let neighbour_graph = neighbour_graph.then_some(neighbour_graph_length);
     let db = sled::Config::new()
@@ -124,6 +125,11 @@ pub(crate) fn open(
     let verdicts = db.open_tree(VERDICTS_TREE)?;
     let verdicts_by_candidate = db.open_tree(VERDICTS_BY_CANDIDATE_TREE)?;
     let mut index = index;
+    if neighbour_graph.is_some() {
+        // Not saved: every large map's rows wait to enter its graph, and
+        // its loop queries take the exact pass meanwhile.
+        index.keep_map_graphs(map_graphs_from);
+    }
     // A snapshot keeps the rows in the order they were grouped in, and
     // the tree is in key order (robot, session, keyframe): the writer
     // groups only what is appended from now on.

@@ -40,6 +40,10 @@ pub struct StoreOptions {
     /// Length the neighbour graph shortens longer descriptors to (0: their
     /// own length); see [`humem_core::engine::graph::SHORT_LENGTH`].
     pub neighbour_graph_length: usize,
+    /// Keyframes from which a map gets a neighbour graph of its own beside
+    /// the store's, for loop queries over it (0: none; the server sets
+    /// `vpr.approximate_from`). Only with `neighbour_graph`.
+    pub map_graphs_from: usize,
 }
 
 /// Default of [`StoreOptions::cache_bytes`]: sled's own.
@@ -56,6 +60,7 @@ impl Default for StoreOptions {
             cache_bytes: DEFAULT_CACHE_BYTES,
             neighbour_graph: false,
             neighbour_graph_length: humem_core::engine::graph::SHORT_LENGTH,
+            map_graphs_from: 0,
         }
     }
 }

@@ -668,3 +668,41 @@ async fn a_saved_graph_of_another_length_is_rebuilt_at_open() {
     let graph = index.neighbour_graph().unwrap();
     assert_eq!((graph.stored_length(), graph.len()), (8, 20));
 }
+
+#[tokio::test]
+async fn large_maps_get_their_own_graphs_again_at_every_open() {
+    let dir = tempfile::tempdir().unwrap();
+    let open = || {
+        open_retrying(
+            dir.path(),
+            StoreOptions {
+                snapshot_every: 0,
+                queue_capacity: 16,
+                neighbour_graph: true,
+                map_graphs_from: 10,
+                ..StoreOptions::default()
+            },
+        )
+    };
+    {
+        let store = open();
+        // Map 0 of robot a reaches the size, map 1 and robot b do not.
+        let mut rows: Vec<_> = (0..12).map(|i| kf("a", "s", i, 0)).collect();
+        rows.extend((12..15).map(|i| kf("a", "s", i, 1)));
+        rows.extend((0..9).map(|i| kf("b", "s", i, 0)));
+        insert(&store, rows).await;
+        assert!(store.wait_for_neighbour_graph(std::time::Duration::from_secs(60)));
+        assert_eq!(store.index().map_graphs().0, 1);
+        assert_eq!(store.index().map_graphs().1, 12);
+        store.snapshot().unwrap();
+    }
+    // Not saved: started again from the rows, in the background.
+    let store = open();
+    assert!(store.wait_for_neighbour_graph(std::time::Duration::from_secs(60)));
+    assert_eq!(store.index().map_graphs().0, 1);
+    assert_eq!(store.index().map_graphs().1, 12);
+    insert(&store, vec![kf("b", "s", 9, 0)]).await;
+    assert!(store.wait_for_neighbour_graph(std::time::Duration::from_secs(60)));
+    assert_eq!(store.index().map_graphs().0, 2);
+    assert_eq!(store.index().map_graphs().1, 22);
+}

@@ -311,6 +311,8 @@ impl PlaceRecognition for PlaceRecognitionService {
                 .filter(|_| readable.is_none())
                 .map(|graph| {
                     let params = self.pipeline.params();
+                    let (map_graphs, map_keyframes, map_bytes) = index.map_graphs();
+                    let map_waiting = index.map_graphs_waiting();
                     proto::NeighbourGraphStats {
                         keyframes: (index.len() - index.neighbour_graph_missing()) as u64,
                         missing: index.neighbour_graph_missing() as u64,
@@ -322,7 +324,11 @@ impl PlaceRecognition for PlaceRecognitionService {
                         } else {
                             params.approximate_from as u64
                         },
-                        waiting: index.neighbour_graph_waiting() as u64,
+                        waiting: (index.neighbour_graph_waiting() - map_waiting) as u64,
+                        map_graphs: map_graphs as u64,
+                        map_graph_keyframes: map_keyframes as u64,
+                        map_graph_memory_bytes: map_bytes as u64,
+                        map_graph_waiting: map_waiting as u64,
                     }
                 });
             let point = index.operating_point(self.pipeline.params(), unix_now());

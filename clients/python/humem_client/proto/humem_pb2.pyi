@@ -614,20 +614,28 @@ class StatsResponse(_message.Message):
     def __init__(self, keyframes: _Optional[int] = ..., descriptor_dim: _Optional[int] = ..., maps: _Optional[_Iterable[_Union[MapStats, _Mapping]]] = ..., disk_bytes: _Optional[int] = ..., format_version: _Optional[int] = ..., server_version: _Optional[str] = ..., log_position: _Optional[int] = ..., verdicts: _Optional[int] = ..., operating_point: _Optional[_Union[OperatingPoint, _Mapping]] = ..., neighbour_graph: _Optional[_Union[NeighbourGraphStats, _Mapping]] = ...) -> None: ...
 
 class NeighbourGraphStats(_message.Message):
-    __slots__ = ("keyframes", "missing", "memory_bytes", "loaded", "approximate_from", "waiting")
+    __slots__ = ("keyframes", "missing", "memory_bytes", "loaded", "approximate_from", "waiting", "map_graphs", "map_graph_keyframes", "map_graph_memory_bytes", "map_graph_waiting")
     KEYFRAMES_FIELD_NUMBER: _ClassVar[int]
     MISSING_FIELD_NUMBER: _ClassVar[int]
     MEMORY_BYTES_FIELD_NUMBER: _ClassVar[int]
     LOADED_FIELD_NUMBER: _ClassVar[int]
     APPROXIMATE_FROM_FIELD_NUMBER: _ClassVar[int]
     WAITING_FIELD_NUMBER: _ClassVar[int]
+    MAP_GRAPHS_FIELD_NUMBER: _ClassVar[int]
+    MAP_GRAPH_KEYFRAMES_FIELD_NUMBER: _ClassVar[int]
+    MAP_GRAPH_MEMORY_BYTES_FIELD_NUMBER: _ClassVar[int]
+    MAP_GRAPH_WAITING_FIELD_NUMBER: _ClassVar[int]
     keyframes: int
     missing: int
     memory_bytes: int
     loaded: bool
     approximate_from: int
     waiting: int
-    def __init__(self, keyframes: _Optional[int] = ..., missing: _Optional[int] = ..., memory_bytes: _Optional[int] = ..., loaded: _Optional[bool] = ..., approximate_from: _Optional[int] = ..., waiting: _Optional[int] = ...) -> None: ...
+    map_graphs: int
+    map_graph_keyframes: int
+    map_graph_memory_bytes: int
+    map_graph_waiting: int
+    def __init__(self, keyframes: _Optional[int] = ..., missing: _Optional[int] = ..., memory_bytes: _Optional[int] = ..., loaded: _Optional[bool] = ..., approximate_from: _Optional[int] = ..., waiting: _Optional[int] = ..., map_graphs: _Optional[int] = ..., map_graph_keyframes: _Optional[int] = ..., map_graph_memory_bytes: _Optional[int] = ..., map_graph_waiting: _Optional[int] = ...) -> None: ...
 
 class OperatingPoint(_message.Message):
     __slots__ = ("threshold", "configured_threshold", "estimated_precision", "configured_precision", "verdicts")

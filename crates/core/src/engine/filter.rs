@@ -9,6 +9,11 @@
 //! those; a plain closure names none, and the scan visits every row. Either
 //! way the answer is the same: the partition only leaves out rows the test
 //! refuses.
+//!
+//! Where the rows that can pass all belong to one map, the filter names it
+//! too ([`RowFilter::group`]), so that a memory that keeps a neighbour
+//! graph per map can walk that map's graph instead of filtering the whole
+//! store's.
 
 /// Which stored rows a query may be answered from.
 pub trait RowFilter: Sync {
@@ -30,7 +35,19 @@ pub trait RowFilter: Sync {
     fn admitted(&self) -> Option<usize> {
         self.partition().map(<[usize]>::len)
     }
+
+    /// The one group of rows every row that can pass belongs to, as the
+    /// memory that compiled the filter numbers its groups (the index: one
+    /// map); None where there is no such group or the filter does not know.
+    fn group(&self) -> Option<RowGroup> {
+        None
+    }
 }
+
+/// A group of rows as a memory numbers them (the index's: one map, by its
+/// interned session and its map id). Only the memory that compiled a
+/// filter reads it.
+pub type RowGroup = u128;
 
 impl<F: Fn(usize) -> bool + Sync + ?Sized> RowFilter for F {
     fn test(&self, row: usize) -> bool {

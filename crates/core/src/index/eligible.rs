@@ -4,7 +4,7 @@
 
 use std::collections::BTreeMap;
 
-use crate::engine::filter::RowFilter;
+use crate::engine::filter::{RowFilter, RowGroup};
 use crate::row_ids::{Eligibility, RowIds};
 use crate::vpr::eligibility::QueryContext;
 
@@ -18,21 +18,23 @@ impl Index {
     /// [`PARTITION_MAX_SHARE`] of the store.
     pub fn eligibility(&self, context: &QueryContext) -> RowEligibility<'_> {
         let rule = Eligibility::compile(context, &self.interner);
-        let (partition, admitted) = self.partition(&rule);
+        let (partition, admitted, group) = self.partition(&rule);
         RowEligibility {
             rule,
             ids: &self.ids,
             partition,
             admitted: Some(admitted),
+            group,
         }
     }
 
     /// The rows of every map `rule` admits (scope and read access), sorted,
     /// or `None` when they are more than [`PARTITION_MAX_SHARE`] of the
-    /// store; and how many they are. The tracks are the partition: every row is in its map's
+    /// store; how many they are; and the map's group where `rule` admits
+    /// one map only. The tracks are the partition: every row is in its map's
     /// track, so counting costs one look per map, and gathering the rows
     /// one per admitted row.
-    fn partition(&self, rule: &Eligibility) -> (Option<Vec<usize>>, usize) {
+    fn partition(&self, rule: &Eligibility) -> (Option<Vec<usize>>, usize, Option<RowGroup>) {
         let admitted: Vec<&BTreeMap<u64, usize>> = self
             .tracks
             .values()
@@ -44,15 +46,26 @@ impl Index {
             })
             .collect();
         let count: usize = admitted.iter().map(|track| track.len()).sum();
+        let group = match admitted.as_slice() {
+            [track] => track.values().next().map(|&row| self.row_group(row)),
+            _ => None,
+        };
         if count as f64 > PARTITION_MAX_SHARE * self.len() as f64 {
-            return (None, count);
+            return (None, count, group);
         }
         let mut rows: Vec<usize> = admitted
             .into_iter()
             .flat_map(|track| track.values().copied())
             .collect();
         rows.sort_unstable();
-        (Some(rows), count)
+        (Some(rows), count, group)
+    }
+
+    /// The group of `row`'s map, as [`RowFilter::group`] names it: its
+    /// interned session (robot and session) and its map id.
+    pub(super) fn row_group(&self, row: usize) -> RowGroup {
+        let ids = &self.ids[row];
+        (RowGroup::from(ids.session) << 64) | RowGroup::from(ids.map_id)
     }
 }
 
@@ -72,6 +85,8 @@ pub struct RowEligibility<'a> {
     /// Rows of the maps the rule admits; None once the query asked for an
     /// exact pass ([`RowEligibility::exact`]).
     admitted: Option<usize>,
+    /// The one map the rule admits, where it admits one.
+    group: Option<RowGroup>,
 }
 
 impl RowEligibility<'_> {
@@ -110,5 +125,9 @@ impl RowFilter for RowEligibility<'_> {
 
     fn admitted(&self) -> Option<usize> {
         self.admitted
+    }
+
+    fn group(&self) -> Option<RowGroup> {
+        self.group
     }
 }

@@ -1,6 +1,7 @@
 //! The index as ranking sees it: the [`KeyframeMemory`] view the scoring
 //! layers read rows through.
 
+use crate::engine::filter::RowGroup;
 use crate::engine::matrix::DescriptorMatrix;
 use crate::keyframe::{ObjectObservation, SceneClass};
 use crate::vpr::appearance::AppearanceMatrix;
@@ -45,8 +46,12 @@ impl KeyframeMemory for Index {
         &self,
         query: &[f32],
         count: usize,
+        group: Option<RowGroup>,
         keep: &(dyn Fn(usize) -> bool + Sync),
     ) -> Option<Vec<usize>> {
-        self.nearest_rows(query, count, keep)
+        match group {
+            Some(group) => self.nearest_rows_of_map(query, count, group, keep),
+            None => self.nearest_rows(query, count, keep),
+        }
     }
 }

@@ -25,12 +25,15 @@
 //! - `grouping`: sorting rows by map so a scoped scan reads long runs;
 //! - `neighbours`: the neighbour graph (the approximate first stage of a
 //!   large query) kept in step with the rows;
+//! - `map_graphs`: a neighbour graph per large map, for loop queries over
+//!   a robot's own map;
 //! - `memory`: the view of the index that ranking reads
 //!   ([`KeyframeMemory`](crate::vpr::memory::KeyframeMemory)).
 
 mod changes;
 mod eligible;
 mod grouping;
+mod map_graphs;
 mod memory;
 mod neighbours;
 mod places;

@@ -30,6 +30,7 @@ use std::sync::Mutex;
 
 use rayon::prelude::*;
 
+use crate::engine::filter::RowGroup;
 use crate::engine::graph::{stored_length, GraphError, NeighbourGraph};
 use crate::keyframe::KeyframeKey;
 
@@ -105,7 +106,9 @@ impl Index {
             missing,
             waiting: absent,
             adding: Mutex::new(()),
+            maps: HashMap::new(),
         });
+        self.start_map_graphs();
         if !self.graph_deferred {
             self.flush_graph_inserts();
         }
@@ -143,11 +146,13 @@ impl Index {
         self.neighbours.as_ref().map_or(0, |n| n.missing)
     }
 
-    /// Keyframe entries waiting to enter the neighbour graph (see
-    /// [`Index::defer_graph_inserts`]); searches score them exactly
+    /// Keyframe entries waiting to enter the neighbour graph or a map's
+    /// (see [`Index::defer_graph_inserts`]); searches score them exactly
     /// meanwhile.
     pub fn neighbour_graph_waiting(&self) -> usize {
-        self.neighbours.as_ref().map_or(0, |n| n.waiting.len())
+        self.neighbours
+            .as_ref()
+            .map_or(0, |n| n.waiting.len() + n.map_waiting())
     }
 
     /// The rows of up to `count` stored keyframes nearest to `query` by
@@ -210,11 +215,16 @@ impl Index {
             // Grows by doubling, so that adds under a shared borrow find
             // room; one that fails here fails again at the add.
             let _ = n.graph.reserve(n.waiting.len());
+            self.map_graph_insert(row, key);
             return;
         }
         // Read only here: out of memory, a row read is a system call.
         if n.graph.add(key, &self.matrix.row(row)).is_ok() {
             n.rows.insert(key, row as u32);
+            self.map_graph_insert(row, key);
+            if self.neighbour_graph_waiting() > 0 {
+                self.flush_graph_inserts();
+            }
         } else {
             n.missing += 1;
         }
@@ -254,6 +264,33 @@ impl Index {
             .collect();
         work.sort_unstable();
         work.dedup();
+        // Then the maps' graphs, with what the limit leaves.
+        let mut left = limit - taken;
+        let mut map_taken = Vec::new();
+        let mut map_work: Vec<(&NeighbourGraph, u64, usize)> = Vec::new();
+        for (&group, m) in &n.maps {
+            if left == 0 {
+                break;
+            }
+            let count = m.waiting.len().min(left);
+            if count == 0 {
+                continue;
+            }
+            left -= count;
+            map_taken.push((group, count));
+            let mut keys: Vec<(u64, usize)> = m.waiting[..count]
+                .iter()
+                .filter_map(|&key| n.rows.get(&key).map(|&row| (key, row as usize)))
+                // Moved to another map since: that map's graph takes it.
+                .filter(|&(_, row)| self.row_group(row) == group)
+                .collect();
+            keys.sort_unstable();
+            keys.dedup();
+            if m.graph.reserve_would_grow(keys.len()) {
+                continue;
+            }
+            map_work.extend(keys.into_iter().map(|(key, row)| (&m.graph, key, row)));
+        }
         let graph = &n.graph;
         let failed = if graph.reserve_would_grow(work.len()) {
             // No room was made (a failed reserve): nothing can be added.
@@ -264,7 +301,16 @@ impl Index {
                 .map(|&(key, _)| key)
                 .collect()
         };
-        GraphAdditions { taken, failed }
+        // A map graph's refusal leaves the row to the store graph and to
+        // exact passes over the map.
+        map_work.par_iter().for_each(|&(graph, key, row)| {
+            let _ = graph.add_shared(key, &self.matrix.row(row));
+        });
+        GraphAdditions {
+            taken,
+            failed,
+            map_taken,
+        }
     }
 
     /// Crosses off the keyframes [`Index::add_waiting_to_graph`] added;
@@ -277,6 +323,11 @@ impl Index {
         for key in added.failed {
             n.rows.remove(&key);
             n.missing += 1;
+        }
+        for (group, count) in added.map_taken {
+            if let Some(m) = n.maps.get_mut(&group) {
+                m.waiting.drain(..count.min(m.waiting.len()));
+            }
         }
     }
 
@@ -292,6 +343,7 @@ impl Index {
                 // A graph that cannot forget a key still names a row the
                 // table no longer has: the search never proposes it.
                 let _ = n.graph.remove(key);
+                self.map_graph_remove(row, key);
             }
             // Left out at insert (its hash was another's).
             _ => n.missing = n.missing.saturating_sub(1),
@@ -318,11 +370,14 @@ impl Index {
 pub struct GraphAdditions {
     taken: usize,
     failed: Vec<u64>,
+    /// Waiting entries taken per map graph.
+    map_taken: Vec<(RowGroup, usize)>,
 }
 
 impl GraphAdditions {
-    /// Waiting entries taken (added, refused, or no longer stored).
+    /// Waiting entries taken (added, refused, or no longer stored), for
+    /// the store's graph and the maps'.
     pub fn taken(&self) -> usize {
-        self.taken
+        self.taken + self.map_taken.iter().map(|(_, n)| n).sum::<usize>()
     }
 }

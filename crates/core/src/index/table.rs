@@ -9,6 +9,7 @@
 use std::collections::{BTreeMap, HashMap};
 use std::sync::Mutex;
 
+use crate::engine::filter::RowGroup;
 use crate::engine::graph::NeighbourGraph;
 use crate::engine::matrix::DescriptorMatrix;
 use crate::keyframe::{
@@ -127,6 +128,9 @@ pub struct Index {
     /// Length the graph shortens longer descriptors to (0: it does not;
     /// see [`Index::shorten_graph_rows`]).
     pub(super) graph_short: usize,
+    /// Keyframes from which a map gets a neighbour graph of its own (0:
+    /// none; see `map_graphs`).
+    pub(super) map_graphs_from: usize,
 }
 
 /// The neighbour graph and the rows its keys name (see `neighbours`).
@@ -147,6 +151,19 @@ pub(super) struct Neighbours {
     /// Held while rows are added to the graph under a shared borrow of
     /// the index, and while the graph is saved, so the two never overlap.
     pub(super) adding: Mutex<()>,
+    /// The graphs of the large maps, by their group (see `map_graphs`).
+    pub(super) maps: HashMap<RowGroup, MapGraph>,
+}
+
+/// One large map's neighbour graph and the keys waiting to enter it (see
+/// `map_graphs`).
+#[derive(Debug)]
+pub(super) struct MapGraph {
+    pub(super) graph: NeighbourGraph,
+    /// Graph keys of the map's keyframes that wait to enter it, oldest
+    /// first; a key no longer in the store graph's `rows`, or now naming
+    /// a row of another map, is skipped.
+    pub(super) waiting: Vec<u64>,
 }
 
 /// An operating point and what it was estimated with.
@@ -184,6 +201,7 @@ impl Index {
             graph_wanted: false,
             graph_deferred: false,
             graph_short: crate::engine::graph::SHORT_LENGTH,
+            map_graphs_from: 0,
         }
     }
 

@@ -7,6 +7,7 @@
 //! in-memory index implements it) and lets tests and benchmarks use the plain
 //! [`VecMemory`] below.
 
+use crate::engine::filter::RowGroup;
 use crate::engine::matrix::DescriptorMatrix;
 use crate::keyframe::{Features, ObjectObservation, SceneClass};
 use crate::vpr::appearance::AppearanceMatrix;
@@ -38,12 +39,15 @@ pub trait KeyframeMemory: Sync {
     }
     /// The rows of up to `count` stored keyframes whose descriptors are
     /// nearest to `query`, among those `keep` accepts, nearest first, from
-    /// an approximate index (a neighbour graph); None for a memory that
-    /// keeps none, which is then always scanned in full.
+    /// an approximate index (a neighbour graph): with `group`, the graph
+    /// of that group of rows only (every row `keep` accepts is in it);
+    /// None for a memory that keeps no such graph, which is then scanned
+    /// in full.
     fn nearest(
         &self,
         _query: &[f32],
         _count: usize,
+        _group: Option<RowGroup>,
         _keep: &(dyn Fn(usize) -> bool + Sync),
     ) -> Option<Vec<usize>> {
         None

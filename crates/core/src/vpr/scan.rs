@@ -58,7 +58,7 @@ use std::cmp::Ordering;
 use rayon::prelude::*;
 
 use crate::engine::codes::QueryCode;
-use crate::engine::filter::RowFilter;
+use crate::engine::filter::{RowFilter, RowGroup};
 use crate::engine::kernels::CodeKernel;
 use crate::engine::visit::Visit;
 use crate::vpr::calibration::{NullModel, Sampler};
@@ -139,8 +139,8 @@ where
     } else {
         matrix.len()
     };
-    if let Some(admitted) = approximate_for(params, eligible, matrix.len()) {
-        if let Some(scan) = approximate_scan(params, &side, memory, eligible, admitted) {
+    if let Some(plan) = approximate_for(params, eligible, matrix.len()) {
+        if let Some(scan) = approximate_scan(params, &side, memory, eligible, plan) {
             return scan;
         }
     }
@@ -151,40 +151,68 @@ where
     }
 }
 
-/// The planner: the eligible rows a query may be answered from, when they
-/// are enough for the neighbour graph's candidates to take the place of a
-/// full pass (`approximate_from`, not `exact`) and a large enough share of
-/// the `stored` rows for the graph's filtered walk to find them cheaply
-/// (`approximate_min_share`); None: a full pass.
+/// The planner's choice of the neighbour graph: how many rows are
+/// eligible, and which graph proposes them.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+struct Approximate {
+    /// The rows of the admitted maps.
+    admitted: usize,
+    /// The one admitted map's own graph; None: the store's graph, walked
+    /// with the filter.
+    group: Option<RowGroup>,
+}
+
+/// The planner: whether a query is answered from the neighbour graph's
+/// candidates instead of a full pass. Only where its eligible rows are
+/// enough for the graph to pay (`approximate_from`, not `exact`); then
+/// from the store's graph where they are a large enough share of the
+/// `stored` rows for its filtered walk to find them cheaply
+/// (`approximate_min_share`), else from the graph of the one map they
+/// belong to, where they are one map (a loop query over a robot's own
+/// large map); None: a full pass.
 fn approximate_for<E: RowFilter + ?Sized>(
     params: &VprParams,
     eligible: &E,
     stored: usize,
-) -> Option<usize> {
+) -> Option<Approximate> {
     let admitted = eligible.admitted()?;
+    if params.exact || admitted < params.approximate_from {
+        return None;
+    }
     let share_enough = admitted as f64 >= f64::from(params.approximate_min_share) * stored as f64;
-    (!params.exact && admitted >= params.approximate_from && share_enough).then_some(admitted)
+    if share_enough {
+        return Some(Approximate {
+            admitted,
+            group: None,
+        });
+    }
+    eligible.group().map(|group| Approximate {
+        admitted,
+        group: Some(group),
+    })
 }
 
 /// The approximate pass: the neighbour graph's `approximate_candidates`
 /// eligible rows nearest to the current observation, each scored exactly
 /// (with its temporal context), the best `top_k` kept; the null model from
 /// the codes over a tag sample ([`approximate_sample`]), with `admitted`
-/// standing for the eligible count. None where the memory keeps no graph.
+/// standing for the eligible count. None where the memory keeps no such
+/// graph (or it is not ready): the caller makes a full pass.
 fn approximate_scan<M, E>(
     params: &VprParams,
     side: &QuerySide,
     memory: &M,
     eligible: &E,
-    admitted: usize,
+    plan: Approximate,
 ) -> Option<ScalScan>
 where
     M: KeyframeMemory + ?Sized,
     E: RowFilter + ?Sized,
 {
+    let Approximate { admitted, group } = plan;
     let count = params.approximate_candidates.max(params.top_k);
     let keep = |row: usize| eligible.test(row);
-    let candidates = memory.nearest(side.descriptors[0], count, &keep)?;
+    let candidates = memory.nearest(side.descriptors[0], count, group, &keep)?;
     let mut hits = side.exact_hits(params, memory, &candidates);
     top_k(&mut hits, params.top_k);
     let kernel = CodeKernel::detect();
@@ -214,9 +242,13 @@ where
 {
     let stride = NullModel::stride(admitted).next_power_of_two();
     let mask = u32::try_from(stride - 1).unwrap_or(u32::MAX);
-    (0..memory.descriptors().len())
-        .filter(|&row| memory.sample_tag(row) & mask == 0 && eligible.test(row))
-        .collect()
+    let sampled = |&row: &usize| memory.sample_tag(row) & mask == 0 && eligible.test(row);
+    match eligible.partition() {
+        // The same rows, in the same order: the partition only leaves out
+        // rows the test refuses.
+        Some(rows) => rows.iter().copied().filter(sampled).collect(),
+        None => (0..memory.descriptors().len()).filter(sampled).collect(),
+    }
 }
 
 /// The median `S_s` of `rows` from the codes' estimates of their products
@@ -659,8 +691,9 @@ mod tests {
     use crate::vpr::testing::{memory_strategy, scene_strategy, unit_vector};
     use proptest::prelude::*;
 
-    /// Admits `admitted` rows (the rows of the maps a query may see).
-    struct Admitting(usize);
+    /// Admits `admitted` rows (the rows of the maps a query may see), all
+    /// of one map where a group is named.
+    struct Admitting(usize, Option<RowGroup>);
 
     impl RowFilter for Admitting {
         fn test(&self, _row: usize) -> bool {
@@ -670,41 +703,49 @@ mod tests {
         fn admitted(&self) -> Option<usize> {
             Some(self.0)
         }
+
+        fn group(&self) -> Option<RowGroup> {
+            self.1
+        }
     }
 
     #[test]
-    fn the_planner_walks_the_graph_only_for_a_large_share_of_a_large_store() {
+    fn the_planner_walks_the_store_graph_for_a_large_share_and_a_map_graph_for_one_large_map() {
         let params = VprParams::default();
         let from = params.approximate_from;
         let stored = 1_000_000;
-        // A merge query over most of the store.
+        let plan = |params: &VprParams, admitted: usize, group: Option<RowGroup>| {
+            approximate_for(params, &Admitting(admitted, group), stored)
+                .map(|plan| (plan.admitted, plan.group))
+        };
+        // A merge query over most of the store: the store's graph, even
+        // where it happens to name one map.
+        assert_eq!(plan(&params, 950_000, None), Some((950_000, None)));
+        assert_eq!(plan(&params, 950_000, Some(7)), Some((950_000, None)));
+        // A loop query over one robot's map of 31 000 (3 %): that map's
+        // graph; several robots' maps of as many: a pass.
+        assert_eq!(plan(&params, 31_000, Some(7)), Some((31_000, Some(7))));
+        assert_eq!(plan(&params, 31_000, None), None);
+        // A sixteenth of the store is enough for the store's graph.
+        assert_eq!(plan(&params, 62_500, None), Some((62_500, None)));
+        // Fewer than `approximate_from`: a pass, whatever the map.
+        assert_eq!(plan(&params, from - 1, Some(7)), None);
         assert_eq!(
-            approximate_for(&params, &Admitting(950_000), stored),
-            Some(950_000)
+            approximate_for(&params, &Admitting(from, None), from).map(|p| p.admitted),
+            Some(from)
         );
-        // A loop query over one robot's map of 31 000 (3 %): a pass.
-        assert_eq!(approximate_for(&params, &Admitting(31_000), stored), None);
-        // A sixteenth of it is enough; fewer than `approximate_from` never.
-        assert_eq!(
-            approximate_for(&params, &Admitting(62_500), stored),
-            Some(62_500)
-        );
-        assert_eq!(approximate_for(&params, &Admitting(from - 1), from), None);
-        assert_eq!(approximate_for(&params, &Admitting(from), from), Some(from));
         // The share rule off; exact on.
         let any_share = VprParams {
             approximate_min_share: 0.0,
             ..params.clone()
         };
-        assert_eq!(
-            approximate_for(&any_share, &Admitting(31_000), stored),
-            Some(31_000)
-        );
+        assert_eq!(plan(&any_share, 31_000, None), Some((31_000, None)));
         let exact = VprParams {
             exact: true,
             ..params
         };
-        assert_eq!(approximate_for(&exact, &Admitting(950_000), stored), None);
+        assert_eq!(plan(&exact, 950_000, None), None);
+        assert_eq!(plan(&exact, 31_000, Some(7)), None);
     }
 
     fn run(
