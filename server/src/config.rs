@@ -297,8 +297,10 @@ pub struct QueryDefaults {
     /// (0: every core). Fewer leaves cores to the store writer and the
     /// perception models under full query load.
     pub scan_threads: usize,
-    /// Scans that run at once, across all robots (at least 1); the rest
-    /// wait their turn in arrival order.
+    /// Scans that run at once, across all robots; the rest wait their
+    /// turn in arrival order. 0: one per scan thread. An exact pass
+    /// spreads over every scan thread, but a walk of a neighbour graph
+    /// runs on one, so on a large store most scans use one core each.
     pub concurrent_scans: usize,
     /// Longest a query may take from its arrival to its answer, in
     /// milliseconds; a query expected to take longer (or longer than its
@@ -313,7 +315,7 @@ impl Default for QueryDefaults {
             min_frame_gap: 100,
             pending_per_client: 1,
             scan_threads: 0,
-            concurrent_scans: 1,
+            concurrent_scans: 0,
             max_wait_ms: 250,
         }
     }

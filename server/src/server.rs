@@ -133,7 +133,11 @@ async fn open(
         perception,
         LatestWins::new(config.query.pending_per_client),
         QueryAdmission::new(
-            config.query.concurrent_scans,
+            match config.query.concurrent_scans {
+                // The scan pool is built above: its threads.
+                0 => rayon::current_num_threads(),
+                n => n,
+            },
             std::time::Duration::from_millis(config.query.max_wait_ms),
         ),
         replica.clone(),
