@@ -25,7 +25,7 @@ use humem_core::engine::filter::RowFilter;
 use humem_core::engine::kernels::dot_f32_wide;
 use humem_core::index::Index;
 use humem_core::keyframe::{Features, SessionKey};
-use humem_core::synthetic::{place_descriptor, Rng};
+use humem_core::synthetic::{place_descriptor, place_of, Rng};
 use humem_core::vpr::eligibility::{QueryContext, Scope};
 use humem_core::vpr::memory::KeyframeMemory;
 use humem_core::vpr::params::VprParams;
@@ -55,8 +55,9 @@ pub struct GraphBench {
     #[arg(long, value_delimiter = ',', default_values_t = [humem_core::engine::graph::SHORT_LENGTH])]
     pub short_lengths: Vec<usize>,
     /// What the queries may see, one table each: every other map (a
-    /// fleet's merge query), or one robot's map (a loop query over a robot's own map, a
-    /// `1/robots` share of the store, walked with a selective filter).
+    /// fleet's merge query: new visits to stored places), or one robot's
+    /// map (a loop query over a robot's own map, a `1/robots` share of
+    /// the store: that robot back at places it has seen).
     #[arg(long, value_enum, value_delimiter = ',', default_values_t = [BenchScope::OtherMaps])]
     pub scopes: Vec<BenchScope>,
     /// Gives every robot's map a graph of its own as well (as the server
@@ -82,6 +83,23 @@ pub enum BenchScope {
     OtherMaps,
     /// The first robot's map only.
     OneRobot,
+}
+
+/// `n` revisits by the first robot of places it has seen (a loop query:
+/// the robot back where it was), each the place's centre plus new noise;
+/// the robot has stored `steps` keyframes.
+fn own_map_queries(places: u64, dim: usize, n: usize, steps: u64) -> Vec<Features> {
+    let mut noise = Rng::new(0x100b);
+    let mut pick = Rng::new(78);
+    (0..n)
+        .map(|_| {
+            let place = place_of(places, 0, pick.next() % steps);
+            Features {
+                descriptor: place_descriptor(dim, place, &mut noise),
+                ..Features::default()
+            }
+        })
+        .collect()
 }
 
 /// The robot whose map `--scope one-robot` queries see.
@@ -197,6 +215,8 @@ fn measure(
         .map_or(args.dim, |g| g.stored_length());
 
     let queries = queries(fleet.places(), args.dim, args.queries);
+    let steps = (rows / args.robots).max(1) as u64;
+    let own_map = own_map_queries(fleet.places(), args.dim, args.queries, steps);
     if last {
         if let Some(dir) = &args.export {
             export(dir, &index, &queries)?;
@@ -205,7 +225,13 @@ fn measure(
     let parts = args
         .scopes
         .iter()
-        .map(|&scope| measure_scope(config, args, &index, scope, &queries, one_core))
+        .map(|&scope| {
+            let queries = match scope {
+                BenchScope::OtherMaps => &queries,
+                BenchScope::OneRobot => &own_map,
+            };
+            measure_scope(config, args, &index, scope, queries, one_core)
+        })
         .collect();
     Ok(Measured {
         rows,
