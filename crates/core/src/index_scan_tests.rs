@@ -495,6 +495,22 @@ fn a_graph_mostly_waiting_leaves_queries_to_a_full_pass() {
     assert_eq!(index.nearest_rows(&query, 1, &|_| true).unwrap(), vec![7]);
 }
 
+/// A loop query of `ROBOTS[robot]` over its map 0 of session 0.
+fn loop_query(robot: usize) -> QueryContext {
+    QueryContext {
+        session: SessionKey {
+            robot_id: ROBOTS[robot].into(),
+            session_id: SESSIONS[0].into(),
+        },
+        keyframe_id: None,
+        frame_id: 0,
+        map_id: 0,
+        min_frame_gap: 0,
+        scope: Scope::SameMap,
+        readable_robots: None,
+    }
+}
+
 #[test]
 fn a_loop_query_over_a_large_map_walks_that_maps_own_graph() {
     use crate::synthetic::{place_descriptor, place_of, Rng};
@@ -524,18 +540,7 @@ fn a_loop_query_over_a_large_map_walks_that_maps_own_graph() {
         approximate_min_share: 0.5,
         ..VprParams::default()
     };
-    let context = |robot: usize| QueryContext {
-        session: SessionKey {
-            robot_id: ROBOTS[robot].into(),
-            session_id: SESSIONS[0].into(),
-        },
-        keyframe_id: None,
-        frame_id: 0,
-        map_id: 0,
-        min_frame_gap: 0,
-        scope: Scope::SameMap,
-        readable_robots: None,
-    };
+    let context = loop_query;
     let (mut same, queries) = (0, 150);
     for q in 0..queries {
         let robot = (q % 3) as usize;
@@ -618,21 +623,7 @@ fn a_maps_graph_starts_when_the_map_grows_large_and_follows_its_keyframes() {
     store(&mut index, 0, 0, 19);
     assert_eq!(index.map_graphs(), (1, 0, index.map_graphs().2));
     assert_eq!(index.neighbour_graph_waiting(), 20 + 20);
-    let group = index
-        .eligibility(&QueryContext {
-            session: SessionKey {
-                robot_id: ROBOTS[0].into(),
-                session_id: SESSIONS[0].into(),
-            },
-            keyframe_id: None,
-            frame_id: 0,
-            map_id: 0,
-            min_frame_gap: 0,
-            scope: Scope::SameMap,
-            readable_robots: None,
-        })
-        .group()
-        .unwrap();
+    let group = index.eligibility(&loop_query(0)).group().unwrap();
     // Mostly waiting: the exact pass.
     assert!(index
         .nearest_rows_of_map(&[1.0, 0.0, 0.0, 0.0, 0.0, 0.0], 1, group, &|_| true)

@@ -20,12 +20,10 @@
 //! graphs are not saved: a restart starts them again in the background,
 //! and loop queries take the exact pass until theirs is ready.
 
-use std::collections::HashSet;
-
 use crate::engine::filter::RowGroup;
 use crate::engine::graph::NeighbourGraph;
 
-use super::neighbours::graph_key;
+use super::neighbours::{graph_key, propose};
 use super::table::{Index, MapGraph, Neighbours};
 
 impl Index {
@@ -160,18 +158,7 @@ impl Index {
         if m.waiting.len() > m.graph.len() / 16 + count {
             return None;
         }
-        let row = |key: u64| n.rows.get(&key).map(|&r| r as usize);
-        let keys = m
-            .graph
-            .search(query, count, |key| row(key).is_some_and(keep))
-            .ok()?;
-        let mut found: Vec<usize> = keys.into_iter().filter_map(row).collect();
-        if !m.waiting.is_empty() {
-            let mut seen: HashSet<usize> = found.iter().copied().collect();
-            let waiting = m.waiting.iter().filter_map(|&key| row(key));
-            found.extend(waiting.filter(|&r| keep(r) && seen.insert(r)));
-        }
-        Some(found)
+        propose(&m.graph, &m.waiting, &n.rows, query, count, keep)
     }
 }
 

@@ -172,18 +172,15 @@ impl Index {
         if neighbours.waiting.len() > self.rows.len() / 16 + count {
             return None;
         }
-        let row = |key: u64| neighbours.rows.get(&key).map(|&r| r as usize);
-        let keys = neighbours
-            .graph
-            .search(query, count, |key| row(key).is_some_and(keep))
-            .ok()?;
-        let mut found: Vec<usize> = keys.into_iter().filter_map(row).collect();
-        if !neighbours.waiting.is_empty() {
-            let mut seen: HashSet<usize> = found.iter().copied().collect();
-            let waiting = neighbours.waiting.iter().filter_map(|&key| row(key));
-            found.extend(waiting.filter(|&r| keep(r) && seen.insert(r)));
-        }
-        Some(found)
+        let graph = &neighbours.graph;
+        propose(
+            graph,
+            &neighbours.waiting,
+            &neighbours.rows,
+            query,
+            count,
+            keep,
+        )
     }
 
     /// Puts the keyframe of `row`, just stored, into the graph, or into
@@ -361,6 +358,31 @@ impl Index {
             }
         }
     }
+}
+
+/// The rows of up to `count` keyframes of `graph` nearest to `query`
+/// among those `keep` accepts, nearest first, then every row `keep`
+/// accepts among the keys `waiting` to enter it; keys name rows by
+/// `rows`. None where the graph fails.
+pub(super) fn propose(
+    graph: &NeighbourGraph,
+    waiting: &[u64],
+    rows: &HashMap<u64, u32>,
+    query: &[f32],
+    count: usize,
+    keep: &(dyn Fn(usize) -> bool + Sync),
+) -> Option<Vec<usize>> {
+    let row = |key: u64| rows.get(&key).map(|&r| r as usize);
+    let keys = graph
+        .search(query, count, |key| row(key).is_some_and(keep))
+        .ok()?;
+    let mut found: Vec<usize> = keys.into_iter().filter_map(row).collect();
+    if !waiting.is_empty() {
+        let mut seen: HashSet<usize> = found.iter().copied().collect();
+        let waiting = waiting.iter().filter_map(|&key| row(key));
+        found.extend(waiting.filter(|&r| keep(r) && seen.insert(r)));
+    }
+    Some(found)
 }
 
 /// What [`Index::add_waiting_to_graph`] did, for [`Index::graph_added`]:
