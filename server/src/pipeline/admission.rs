@@ -255,28 +255,18 @@ mod tests {
         let admission = QueryAdmission::new(1, Duration::from_millis(200));
         // Recent scans take 80 ms (the first time recorded is the mean).
         admission.record(ScanKind::Planned, Duration::from_millis(80));
-        let running = admission
-            .admit(ScanKind::Planned, Duration::ZERO, None)
-            .await
-            .unwrap();
+        let running = admit_now(&admission, ScanKind::Planned).await.unwrap();
         // One ahead: 80 ms to wait and 80 to scan, within 200 ms.
         let second = {
             let a = admission.clone();
-            tokio::spawn(async move {
-                a.admit(ScanKind::Planned, Duration::ZERO, None)
-                    .await
-                    .map(|_| ())
-            })
+            tokio::spawn(async move { admit_now(&a, ScanKind::Planned).await.map(|_| ()) })
         };
         tokio::task::yield_now().await;
         while admission.waiting() == 0 {
             tokio::task::yield_now().await;
         }
         // Two ahead: 160 + 80 ms > 200 ms: refused, saying why.
-        let busy = admission
-            .admit(ScanKind::Planned, Duration::ZERO, None)
-            .await
-            .unwrap_err();
+        let busy = admit_now(&admission, ScanKind::Planned).await.unwrap_err();
         assert_eq!(busy.ahead, 2);
         assert!(busy.expected >= Duration::from_millis(230), "{busy:?}");
         assert!(busy.to_string().contains("retry after"));
@@ -286,10 +276,7 @@ mod tests {
         // turn; with the slot free, both run.
         drop(running);
         second.await.unwrap().unwrap();
-        let running = admission
-            .admit(ScanKind::Planned, Duration::ZERO, None)
-            .await
-            .unwrap();
+        let running = admit_now(&admission, ScanKind::Planned).await.unwrap();
         let short = admission
             .admit(
                 ScanKind::Planned,
@@ -322,10 +309,7 @@ mod tests {
                 .unwrap(),
         );
         // The waiting count returns to zero when a waiter gives up.
-        let hold = admission
-            .admit(ScanKind::Planned, Duration::ZERO, None)
-            .await
-            .unwrap();
+        let hold = admit_now(&admission, ScanKind::Planned).await.unwrap();
         let gave_up = tokio::time::timeout(
             Duration::from_millis(10),
             admission.admit(ScanKind::Planned, Duration::ZERO, None),
@@ -336,17 +320,19 @@ mod tests {
         drop(hold);
     }
 
+    /// Asks `admission` for a slot for a query of `kind` that has not
+    /// waited and has no deadline of its own.
+    async fn admit_now(admission: &Arc<QueryAdmission>, kind: ScanKind) -> Result<ScanSlot, Busy> {
+        admission.admit(kind, Duration::ZERO, None).await
+    }
+
     /// A planned query admitted in a task of its own, once it waits for
     /// its slot.
     async fn quick_query_waiting(
         admission: &Arc<QueryAdmission>,
     ) -> tokio::task::JoinHandle<Result<(), Busy>> {
         let a = admission.clone();
-        let task = tokio::spawn(async move {
-            a.admit(ScanKind::Planned, Duration::ZERO, None)
-                .await
-                .map(|_| ())
-        });
+        let task = tokio::spawn(async move { admit_now(&a, ScanKind::Planned).await.map(|_| ()) });
         while admission.waiting() == 0 {
             tokio::task::yield_now().await;
         }
@@ -359,31 +345,19 @@ mod tests {
         admission.record(ScanKind::Planned, Duration::from_millis(5));
         // An exact pass over a large store: 600 ms.
         admission.record(ScanKind::Exact, Duration::from_millis(600));
-        let running = admission
-            .admit(ScanKind::Planned, Duration::ZERO, None)
-            .await
-            .unwrap();
+        let running = admit_now(&admission, ScanKind::Planned).await.unwrap();
         // One quick scan ahead: 5 + 5 ms, admitted.
         let quick = quick_query_waiting(&admission).await;
         // An exact query behind two quick ones would take 610 ms: refused,
         // its own kind's time counted.
-        let busy = admission
-            .admit(ScanKind::Exact, Duration::ZERO, None)
-            .await
-            .unwrap_err();
+        let busy = admit_now(&admission, ScanKind::Exact).await.unwrap_err();
         assert_eq!(busy.ahead, 2);
         assert!(busy.expected >= Duration::from_millis(600), "{busy:?}");
         drop(running);
         quick.await.unwrap().unwrap();
         // With an exact scan running, a quick query expects its 600 ms.
-        let exact = admission
-            .admit(ScanKind::Exact, Duration::ZERO, None)
-            .await
-            .unwrap();
-        let behind = admission
-            .admit(ScanKind::Planned, Duration::ZERO, None)
-            .await
-            .unwrap_err();
+        let exact = admit_now(&admission, ScanKind::Exact).await.unwrap();
+        let behind = admit_now(&admission, ScanKind::Planned).await.unwrap_err();
         assert!(behind.expected >= Duration::from_millis(600), "{behind:?}");
         drop(exact);
         assert_eq!(
@@ -392,10 +366,7 @@ mod tests {
         );
         // Once it is done, quick queries behind quick ones are admitted
         // again: the exact scan's time is not in their mean.
-        let running = admission
-            .admit(ScanKind::Planned, Duration::ZERO, None)
-            .await
-            .unwrap();
+        let running = admit_now(&admission, ScanKind::Planned).await.unwrap();
         let next = quick_query_waiting(&admission).await;
         drop(running);
         next.await.unwrap().unwrap();

@@ -284,6 +284,8 @@ impl Index {
             keys.sort_unstable();
             keys.dedup();
             if m.graph.reserve_would_grow(keys.len()) {
+                // No room was made (out of memory): these are crossed off
+                // unadded, as the refusals below are.
                 continue;
             }
             map_work.extend(keys.into_iter().map(|(key, row)| (&m.graph, key, row)));
@@ -298,8 +300,9 @@ impl Index {
                 .map(|&(key, _)| key)
                 .collect()
         };
-        // A map graph's refusal leaves the row to the store graph and to
-        // exact passes over the map.
+        // A row a map's graph refuses (out of memory) is left out of it
+        // for good: its map's loop queries no longer propose it, while
+        // merge queries still find it through the store's graph.
         map_work.par_iter().for_each(|&(graph, key, row)| {
             let _ = graph.add_shared(key, &self.matrix.row(row));
         });
