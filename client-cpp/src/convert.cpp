@@ -152,6 +152,14 @@ Candidate FromProto(const v1::Candidate& c) {
   ev.verdict_support = e.verdict_support();
   ev.verdict_rejections = e.verdict_rejections();
   ev.verdict_acceptances = e.verdict_acceptances();
+  if (e.has_drift()) {
+    DriftEnvelope d;
+    d.distance = e.drift().distance();
+    d.path = e.drift().path();
+    d.ratio = e.drift().ratio();
+    d.allowance = e.drift().allowance();
+    ev.drift = d;
+  }
   for (const v1::ObjectMatch& m : e.object_matches()) {
     ObjectMatch o;
     o.query_object = m.query_object();

@@ -71,6 +71,8 @@ humem::Keyframe Refused(uint64_t id) {
 humem::Keyframe LookingLike(uint64_t id, uint32_t like) {
   humem::Keyframe kf = MakeKeyframe(id, 0);
   kf.features.descriptor = Near(RandomDescriptor(like), static_cast<uint32_t>(id));
+  // Back where keyframe `like` stands: a revisit, within the map's drift.
+  kf.pose.translation = humem::Vec3(static_cast<double>(like), 0, 0);
   return kf;
 }
 

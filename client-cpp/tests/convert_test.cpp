@@ -306,6 +306,22 @@ TEST(Convert, EvidenceCarriesTheVerdictTerms) {
   EXPECT_FLOAT_EQ(out.evidence.verdict_support, 0.5f);
   EXPECT_EQ(out.evidence.verdict_rejections, 2u);
   EXPECT_EQ(out.evidence.verdict_acceptances, 1u);
+  EXPECT_FALSE(out.evidence.drift.has_value());
+}
+
+TEST(Convert, EvidenceCarriesTheDriftEnvelope) {
+  v1::Candidate c;
+  v1::DriftEnvelope* d = c.mutable_evidence()->mutable_drift();
+  d->set_distance(3.0);
+  d->set_path(213.0);
+  d->set_ratio(3.0 / 213.0);
+  d->set_allowance(25.8);
+  const Candidate out = FromProto(c);
+  ASSERT_TRUE(out.evidence.drift.has_value());
+  EXPECT_DOUBLE_EQ(out.evidence.drift.value().distance, 3.0);
+  EXPECT_DOUBLE_EQ(out.evidence.drift.value().path, 213.0);
+  EXPECT_DOUBLE_EQ(out.evidence.drift.value().ratio, 3.0 / 213.0);
+  EXPECT_DOUBLE_EQ(out.evidence.drift.value().allowance, 25.8);
 }
 
 }  // namespace

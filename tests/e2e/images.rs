@@ -27,7 +27,9 @@ pub(crate) fn keyframe(robot: &str, id: u64, content: proto::Image) -> proto::Ke
         frame_id: Some(id),
         timestamp: id as f64,
         map_id: Some(0),
-        pose: Some(crate::scenes::pose(id as f64)),
+        // No odometry: every keyframe at the origin, as a client without
+        // poses sends them.
+        pose: Some(crate::scenes::pose(0.0)),
         content: Some(proto::keyframe::Content::Image(content)),
     }
 }

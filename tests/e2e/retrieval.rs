@@ -442,7 +442,11 @@ async fn a_loop_query_leaves_out_views_of_its_map_turned_away_from_it() {
         ),
         90.0,
     ));
-    keyframes.push(look_alike(&place, 300, vec![]));
+    // The query is back at the place (x = 2) after driving on to x = 32:
+    // within the map's drift of keyframes 1 and 2.
+    let mut back = look_alike(&place, 300, vec![]);
+    back.pose = Some(scenes::pose(2.0));
+    keyframes.push(back);
 
     for (env, left_out) in [
         (&[][..], true),
@@ -469,5 +473,63 @@ async fn a_loop_query_leaves_out_views_of_its_map_turned_away_from_it() {
                 &[1, 2, 40].into()
             );
         }
+    }
+}
+
+/// A drive along x (keyframe k at x = k, 1 to 32) back to its start:
+/// keyframe 300, at x = 1, looks like keyframe 1 (the place's first
+/// visit, 0 away after a path of 62) and like keyframe 20 (a look-alike 19
+/// away after a path of 43: beyond 0.1 · 43 + 3, the radius being three
+/// keyframe spacings of 1). The look-alike is left out and the first
+/// visit carries the envelope's numbers; with `vpr.max_drift_ratio = 1`
+/// both are proposed.
+#[tokio::test(flavor = "multi_thread")]
+async fn a_loop_query_leaves_out_a_look_alike_farther_than_the_maps_drift() {
+    let mut world = World::new(40, 5);
+    let place = world.view(0, 0.0);
+    let mut keyframes: Vec<proto::Keyframe> = other_places(&mut world)
+        .into_iter()
+        .filter(|kf| id(kf) != 20)
+        .collect();
+    keyframes.push(look_alike(&place, 1, vec![]));
+    keyframes.push(scenes::keyframe(
+        "r",
+        "s",
+        [2, 400, 0],
+        scenes::features(world.view(2, 0.3), 1, vec![]),
+    ));
+    keyframes.push(look_alike(&place, 20, vec![]));
+    let mut back = look_alike(&place, 300, vec![]);
+    back.pose = Some(scenes::pose(1.0));
+    keyframes.push(back);
+
+    for (env, left_out) in [
+        (&[][..], true),
+        (&["HUMEM_VPR__MAX_DRIFT_RATIO=1"][..], false),
+    ] {
+        let dir = tempfile::tempdir().unwrap();
+        let server = Server::start_with(dir.path(), env);
+        let mut client = server.client().await;
+        insert_all(&mut client, keyframes.clone()).await;
+        let mut query = query_stored("r", "s", 300);
+        query.scope = proto::Scope::SameMap as i32;
+        query.threshold = Some(0.0);
+        query.top_n = Some(50);
+        let reply = client.query(query).await.unwrap().into_inner();
+        let ids: Vec<u64> = reply.candidates.iter().map(|c| c.keyframe_id).collect();
+        assert_eq!(ids.contains(&20), !left_out, "{env:?}: {ids:?}");
+        let first_visit = reply.candidates.iter().find(|c| c.keyframe_id == 1);
+        let drift = first_visit
+            .and_then(|c| c.evidence.as_ref())
+            .and_then(|e| e.drift)
+            .unwrap_or_else(|| panic!("{env:?}: the first visit, with the envelope: {ids:?}"));
+        assert_eq!(drift.distance, 0.0);
+        assert!((drift.path - 62.0).abs() < 1e-9, "{drift:?}");
+        assert_eq!(drift.ratio, 0.0);
+        let bound = if left_out { 0.1 } else { 1.0 };
+        assert!(
+            (drift.allowance - (bound * 62.0 + 3.0)).abs() < 1e-9,
+            "{drift:?}"
+        );
     }
 }

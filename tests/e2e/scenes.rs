@@ -132,8 +132,10 @@ pub fn keyframe(
 }
 
 /// A drive through `first_lap` places and back through the first
-/// `second_lap` of them: keyframe `k` is made from frame `3 k`. Returns the
-/// keyframes and the place each shows.
+/// `second_lap` of them: keyframe `k` is made from frame `3 k` and stands
+/// at its place's position (`x` = the place), so a revisit is where the
+/// map put the first visit. Returns the keyframes and the place each
+/// shows.
 pub fn loop_drive(
     world: &mut World,
     robot: &str,
@@ -148,12 +150,13 @@ pub fn loop_drive(
         .map(|(k, place)| {
             let text = format!("ROOM {}", 100 + place);
             let objects = vec![sign(&text, 0.2 + 0.006 * (place % 100) as f32, 0.3)];
-            let kf = keyframe(
+            let mut kf = keyframe(
                 robot,
                 session,
                 [k as u64, 3 * k as u64, map_id],
                 features(world.view(place, 0.35), (place / 10) as u32, objects),
             );
+            kf.pose = Some(pose(place as f64));
             (kf, place)
         })
         .collect()

@@ -231,6 +231,14 @@ struct TextMatch {
   TextMatch() : query_object(0), candidate_object(0), similarity(0), score(0), distinctiveness(0) {}
 };
 
+// Where a candidate of the query's own map lies against the map's drift
+// (map units): proposed only when distance <= allowance (see the proto's
+// DriftEnvelope).
+struct DriftEnvelope {
+  double distance, path, ratio, allowance;
+  DriftEnvelope() : distance(0), path(0), ratio(0), allowance(0) {}
+};
+
 // Why a candidate was proposed (see the proto's Evidence).
 struct Evidence {
   float scene_score;
@@ -250,6 +258,10 @@ struct Evidence {
   float verdict_support;
   uint32_t verdict_rejections;
   uint32_t verdict_acceptances;
+  // Set for a candidate of the query's own map when the query is a stored
+  // keyframe: its distance from the query, the path between them, r and the
+  // allowance.
+  Optional<DriftEnvelope> drift;
   Evidence()
       : scene_score(0), descriptor_cosine(0), temporal_depth(0), object_score(0), text_score(0),
         text_distinctiveness(0), corroboration(0), verdict_penalty(0), verdict_support(0),

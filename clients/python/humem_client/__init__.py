@@ -28,6 +28,7 @@ from .proto import humem_pb2 as pb
 from .proto import humem_pb2_grpc as pb_grpc
 from .types import (
     Candidate,
+    DriftEnvelope,
     EraseResult,
     Evidence,
     Features,
@@ -69,6 +70,7 @@ __all__ = [
     "CancelledError",
     "Client",
     "DeadlineExceededError",
+    "DriftEnvelope",
     "EraseResult",
     "Evidence",
     "FailedPreconditionError",

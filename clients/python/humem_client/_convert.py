@@ -10,6 +10,7 @@ import numpy as np
 from .proto import humem_pb2 as pb
 from .types import (
     Candidate,
+    DriftEnvelope,
     EraseResult,
     Evidence,
     Features,
@@ -170,6 +171,7 @@ def evidence_from_proto(e: pb.Evidence) -> Evidence:
         text_matches=tuple(_plain(TextMatch, m) for m in e.text_matches),
         text_conflicts=tuple(_plain(TextConflict, c) for c in e.text_conflicts),
         missing_objects=tuple(_plain(MissingObject, m) for m in e.missing_objects),
+        drift=_plain(DriftEnvelope, e.drift) if e.HasField("drift") else None,
     )
 
 

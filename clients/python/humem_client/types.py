@@ -524,6 +524,17 @@ class MissingObject:
 
 
 @dataclass(frozen=True)
+class DriftEnvelope:
+    """Where a candidate of the query's own map lies against the map's
+    drift (map units): proposed only when ``distance <= allowance``."""
+
+    distance: float
+    path: float
+    ratio: float
+    allowance: float
+
+
+@dataclass(frozen=True)
 class Evidence:
     """Why a candidate was proposed; see ``humem.v1.Evidence`` for each term."""
 
@@ -550,6 +561,7 @@ class Evidence:
     verdict_support: float
     verdict_rejections: int
     verdict_acceptances: int
+    drift: Optional[DriftEnvelope] = None
 
 
 @dataclass(frozen=True)

@@ -57,6 +57,7 @@ class MirrorTest(unittest.TestCase):
             (hc.TextMatch, pb.TextMatch),
             (hc.TextConflict, pb.TextConflict),
             (hc.MissingObject, pb.MissingObject),
+            (hc.DriftEnvelope, pb.DriftEnvelope),
             (hc.Stats, pb.StatsResponse),
             (hc.MapStats, pb.MapStats),
             (hc.OperatingPoint, pb.OperatingPoint),
@@ -76,6 +77,16 @@ class MirrorTest(unittest.TestCase):
         self.assertEqual(set(pb.DESCRIPTOR.services_by_name["PlaceRecognition"].methods_by_name),
                          {"Insert", "InsertBatch", "Query", "Erase", "ResetMap", "ResetSession", "UpdatePoses",
                           "Stats", "ReportVerification"})
+
+    def test_the_drift_envelope_is_carried_when_set(self):
+        message = pb.Candidate()
+        self.assertIsNone(_convert.candidate_from_proto(message).evidence.drift)
+        message.evidence.drift.distance = 3.0
+        message.evidence.drift.path = 213.0
+        message.evidence.drift.ratio = 3.0 / 213.0
+        message.evidence.drift.allowance = 25.8
+        drift = _convert.candidate_from_proto(message).evidence.drift
+        self.assertEqual(drift, hc.DriftEnvelope(distance=3.0, path=213.0, ratio=3.0 / 213.0, allowance=25.8))
 
     def test_a_full_query_request_round_trips(self):
         q = hc.Query(frame_id=7, keyframe_id=3, map_id=2, features=hc.Features(

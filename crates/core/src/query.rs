@@ -4,7 +4,9 @@
 //! The scan and the paper's layers rank the eligible rows
 //! ([`rank_timed`]); the rules on top of them that need the index itself
 //! come next, in this order: views of the query's own map turned away from
-//! it are left out ([`viewpoint`]), SLAM's verdicts change the scores
+//! it are left out ([`viewpoint`]), and so are its candidates lying
+//! farther away than the map's drift explains
+//! ([`drift`](crate::vpr::drift)), SLAM's verdicts change the scores
 //! ([`feedback`]), and the store's operating point gives the threshold
 //! unless the query names one; then the candidates are selected.
 //!
@@ -21,8 +23,9 @@ use std::time::Instant;
 use crate::index::Index;
 use crate::keyframe::SessionKey;
 use crate::verdict::unix_now;
+use crate::vpr::drift::DriftEvidence;
 use crate::vpr::eligibility::QueryContext;
-use crate::vpr::feedback::{self, Place, PlacedVerdict};
+use crate::vpr::feedback::{self, squared_distance, Place, PlacedVerdict};
 use crate::vpr::operating_point::OperatingPoint;
 use crate::vpr::params::{Layers, VprParams};
 use crate::vpr::rank::{
@@ -96,6 +99,7 @@ pub fn answer(index: &Index, params: &VprParams, query: &IndexQuery) -> Answer {
     } = rank_timed(params, query.layers, &query.observation, index, &eligible);
     let clock = Instant::now();
     leave_out_turned_away(index, params, query.stored_row, &mut ranked);
+    leave_out_beyond_drift(index, params, query.stored_row, &mut ranked);
     let now = unix_now();
     apply_verdicts(index, params, query.stored_row, &mut ranked, now);
     let operating_point = index.operating_point(params, now);
@@ -131,6 +135,38 @@ pub fn leave_out_turned_away(
         !candidate.same_map(query)
             || !viewpoint::turned_away(params.max_view_change_deg, &query.pose, &candidate.pose)
     });
+}
+
+/// Measures every candidate of the query's own map against the drift
+/// envelope ([`drift`](crate::vpr::drift)), records what it found in the
+/// candidate's evidence, and leaves out those lying farther from the
+/// query than `vpr.max_drift_ratio` of the path between them plus the
+/// map's same-place radius allows. A query without a stored keyframe
+/// keeps them all, unmeasured; so do candidates of other maps.
+pub fn leave_out_beyond_drift(
+    index: &Index,
+    params: &VprParams,
+    stored_row: Option<usize>,
+    ranked: &mut Vec<RankedCandidate>,
+) {
+    let Some(query_row) = stored_row else {
+        return;
+    };
+    let rows: Vec<usize> = ranked.iter().map(|r| r.row).collect();
+    let paths = index.track_paths(query_row, &rows);
+    if paths.iter().all(Option::is_none) {
+        return;
+    }
+    let query = index.meta(query_row);
+    let radius = params.verdicts.radius(index.map_spacing(&query.map_key()));
+    for (candidate, path) in ranked.iter_mut().zip(paths) {
+        candidate.drift = path.map(|path| {
+            let at = index.meta(candidate.row).pose.translation;
+            let distance = squared_distance(query.pose.translation, at).sqrt();
+            DriftEvidence::new(distance, path, radius, params.max_drift_ratio)
+        });
+    }
+    ranked.retain(|r| !r.drift.is_some_and(|d| d.beyond()));
 }
 
 /// Changes the ranked candidates' scores by SLAM's stored verdicts
@@ -376,5 +412,171 @@ mod tests {
             at_operating_point.threshold,
             at_operating_point.operating_point.threshold
         );
+    }
+
+    /// A map driven along straight segments: keyframe `i` at
+    /// `positions[i]`, every descriptor alike, so every earlier keyframe is
+    /// ranked and only the rules decide.
+    fn map_along(positions: &[[f64; 3]]) -> Index {
+        let mut index = Index::new(2);
+        for (id, &translation) in positions.iter().enumerate() {
+            index.upsert(SemanticKeyframe {
+                key: drive().keyframe(id as u64),
+                frame_id: id as u64,
+                timestamp: id as f64,
+                map_id: 0,
+                pose: Pose {
+                    translation,
+                    ..Pose::default()
+                },
+                features: Features {
+                    descriptor: vec![0.6, 0.8],
+                    ..Features::default()
+                },
+            });
+        }
+        index
+    }
+
+    /// 141 keyframes 1.5 m apart, 105 m east and back to the start (210 m
+    /// driven), then the query's keyframe at `query`.
+    fn out_and_back(query: [f64; 3]) -> Vec<[f64; 3]> {
+        let east = (0..=70).map(|i| [1.5 * f64::from(i), 0.0, 0.0]);
+        let west = (1..=70).map(|i| [105.0 - 1.5 * f64::from(i), 0.0, 0.0]);
+        east.chain(west).chain([query]).collect()
+    }
+
+    /// The drift evidence of keyframe `id` among `answer`'s candidates,
+    /// which must hold it.
+    fn drift_of(answer: &Answer, index: &Index, id: u64) -> DriftEvidence {
+        answer
+            .candidates
+            .iter()
+            .find(|c| index.meta(c.row).key.keyframe_id == id)
+            .unwrap_or_else(|| panic!("keyframe {id} is proposed"))
+            .drift
+            .expect("a candidate of the query's map is measured")
+    }
+
+    /// The row of the drive's last keyframe (erasures move rows).
+    fn last_row(index: &Index) -> usize {
+        (0..index.len())
+            .max_by_key(|&row| index.meta(row).key.keyframe_id)
+            .unwrap()
+    }
+
+    fn drive() -> SessionKey {
+        SessionKey {
+            robot_id: "r".into(),
+            session_id: "s".into(),
+        }
+    }
+
+    /// The answer to the drive's last keyframe (the highest id) as a loop
+    /// query over its own map, with a frame gap of `gap`.
+    fn loop_answer(index: &Index, params: &VprParams, gap: u64) -> Answer {
+        let row = last_row(index);
+        let mut query = query_of(index, row, true);
+        query.context.scope = Scope::SameMap;
+        query.context.min_frame_gap = gap;
+        query.layers = Layers::SCAL;
+        let current = index.keyframe(row).features;
+        query.observation.history = vec![&current];
+        answer(index, params, &query)
+    }
+
+    fn ids(answer: &Answer, index: &Index) -> Vec<u64> {
+        let mut ids: Vec<u64> = answer
+            .candidates
+            .iter()
+            .map(|c| index.meta(c.row).key.keyframe_id)
+            .collect();
+        ids.sort_unstable();
+        ids
+    }
+
+    /// A drive 105 m east in 1.5 m steps and 105 m back west to its
+    /// start, then a query 40 m north of it: keyframe 0 lies 40 m away
+    /// after 250 m of path and is left out; a query 3 m north of the start
+    /// instead is a revisit and keeps it, with the envelope's numbers in
+    /// its evidence.
+    #[test]
+    fn a_look_alike_40_m_away_after_210_m_is_left_out_and_a_revisit_kept() {
+        let away = out_and_back([0.0, 40.0, 0.0]);
+        let index = map_along(&away);
+        let params = VprParams::default();
+        let answer = loop_answer(&index, &params, 100);
+        // Spacing 1.5 m, radius 3 spacings = 4.5 m; keyframe 0 lies 40 m
+        // away after 210 m + 40 m: allowance 0.1 · 250 + 4.5 = 29.5 m.
+        assert!(
+            !ids(&answer, &index).contains(&0),
+            "{:?}",
+            ids(&answer, &index)
+        );
+        // Back at the start instead (3 m off): kept, with its evidence.
+        let index = map_along(&out_and_back([0.0, 3.0, 0.0]));
+        let drift = drift_of(&loop_answer(&index, &params, 100), &index, 0);
+        assert!((drift.distance - 3.0).abs() < 1e-9);
+        assert!((drift.path - 213.0).abs() < 1e-9, "{}", drift.path);
+        assert!((drift.ratio() - 3.0 / 213.0).abs() < 1e-12);
+        assert!((drift.allowance - (21.3 + 4.5)).abs() < 1e-9);
+        // Off: the look-alike comes back.
+        let off = VprParams {
+            max_drift_ratio: crate::vpr::drift::OFF_RATIO,
+            ..VprParams::default()
+        };
+        let index = map_along(&away);
+        assert!(ids(&loop_answer(&index, &off, 100), &index).contains(&0));
+    }
+
+    /// The same drive in units 37 times smaller gives the same answers.
+    #[test]
+    fn a_store_scaled_by_1_over_37_answers_alike() {
+        let positions = out_and_back([0.0, 12.0, 0.0]);
+        let scaled: Vec<[f64; 3]> = positions.iter().map(|p| p.map(|x| x / 37.0)).collect();
+        let params = VprParams::default();
+        let (metric, small) = (map_along(&positions), map_along(&scaled));
+        let a = loop_answer(&metric, &params, 100);
+        let b = loop_answer(&small, &params, 100);
+        assert_eq!(ids(&a, &metric), ids(&b, &small));
+        // Keyframe 10 (15 m east): 19.2 m away after 207 m, within
+        // 25.2 m; keyframe 19 (28.5 m east): 30.9 m after 193.5 m, beyond
+        // 23.85 m.
+        assert!(ids(&a, &metric).contains(&10));
+        assert!(!ids(&a, &metric).contains(&19));
+        for (x, y) in a.candidates.iter().zip(&b.candidates) {
+            let (x, y) = (x.drift.unwrap(), y.drift.unwrap());
+            assert!((x.ratio() - y.ratio()).abs() < 1e-9);
+        }
+    }
+
+    /// A loop closure's pose update moves the query's keyframe back onto
+    /// its first visit: the candidate left out before is proposed after.
+    #[test]
+    fn a_pose_update_that_closes_a_loop_changes_the_decision() {
+        let mut index = map_along(&out_and_back([0.0, 40.0, 0.0]));
+        let params = VprParams::default();
+        assert!(!ids(&loop_answer(&index, &params, 100), &index).contains(&0));
+        let mut corrected = index.keyframe(last_row(&index));
+        corrected.pose.translation = [0.0, 1.0, 0.0];
+        index.upsert(corrected);
+        assert!(ids(&loop_answer(&index, &params, 100), &index).contains(&0));
+    }
+
+    /// Erasing keyframes in the middle of the track keeps the path whole:
+    /// it runs straight over the gap, and the decision stays.
+    #[test]
+    fn erasures_keep_the_chain() {
+        let mut index = map_along(&out_and_back([0.0, 3.0, 0.0]));
+        for id in 30..40 {
+            index.remove(&drive().keyframe(id));
+        }
+        let answer = loop_answer(&index, &VprParams::default(), 100);
+        // Keyframes 30–39 lay on the straight eastward leg: the straight
+        // line over them is as long as they were.
+        assert!((drift_of(&answer, &index, 0).path - 213.0).abs() < 1e-9);
+        let k29 = index.row_of(&drive().keyframe(29)).unwrap();
+        let paths = index.track_paths(last_row(&index), &[k29]);
+        assert!((paths[0].unwrap() - (213.0 - 29.0 * 1.5)).abs() < 1e-9);
     }
 }

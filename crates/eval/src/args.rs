@@ -91,8 +91,15 @@ pub struct EvalArgs {
     /// the town loop are about 1/37 of the metres driven).
     #[arg(long, default_value_t = 1.0)]
     pub replay_pose_scale: f64,
-    /// With --replay-verdicts: a further pass with other verdict settings,
-    /// NAME:key=value,… (keys of [vpr.verdicts]); repeatable.
+    /// With --replay-verdicts: send the poses as an odometry drifting by
+    /// this share of the path would (a seeded random walk in heading and
+    /// scale per metre driven; 0.03: a revisit after a 200 m loop lies
+    /// about 6 m from its first visit). 0: the data set's poses.
+    #[arg(long, default_value_t = 0.0)]
+    pub replay_pose_drift: f64,
+    /// With --replay-verdicts: a further pass with other settings,
+    /// NAME:key=value,… (keys of [vpr.verdicts], and max_drift_ratio);
+    /// repeatable.
     #[arg(long)]
     pub replay_variant: Vec<Variant>,
 }

@@ -24,6 +24,8 @@
 //! - `progress`: the progress bar of every long pass;
 //! - `images`: an image as a method is given it (degraded, grey);
 //! - `keyframes`: an image as an index stores it;
+//! - [`pose_drift`]: poses as a drifting odometry would send them
+//!   (`--replay-pose-drift`);
 //!
 //! `humem eval`, bottom up:
 //! - [`verdict_replay`]: the stream replayed with the ground truth as
@@ -63,6 +65,7 @@ mod local;
 pub mod metrics;
 pub mod perception_bench;
 pub mod plots;
+pub mod pose_drift;
 pub mod precision;
 mod progress;
 pub mod protocol;

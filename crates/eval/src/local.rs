@@ -139,6 +139,7 @@ impl LocalDatabase {
                 wrong_rejections: args.wrong_rejections,
                 seed: args.replay_seed,
                 pose_scale: args.replay_pose_scale,
+                pose_drift: args.replay_pose_drift,
             },
             &args.replay_variant,
         )

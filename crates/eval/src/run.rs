@@ -127,6 +127,9 @@ pub async fn run(config: Config, mut args: EvalArgs) -> anyhow::Result<()> {
         if !(args.replay_pose_scale.is_finite() && args.replay_pose_scale > 0.0) {
             anyhow::bail!("--replay-pose-scale must be a finite number > 0");
         }
+        if !(args.replay_pose_drift.is_finite() && args.replay_pose_drift >= 0.0) {
+            anyhow::bail!("--replay-pose-drift must be a finite number >= 0");
+        }
         let rows = match &mut backend {
             Backend::Local(local) => {
                 let (perception, database) = &**local;
@@ -147,6 +150,7 @@ pub async fn run(config: Config, mut args: EvalArgs) -> anyhow::Result<()> {
                             wrong_rejections: args.wrong_rejections,
                             seed: args.replay_seed,
                             pose_scale: args.replay_pose_scale,
+                            pose_drift: args.replay_pose_drift,
                         },
                     )
                     .await?

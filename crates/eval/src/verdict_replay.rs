@@ -24,7 +24,12 @@
 //! place is as many frames long as 2 × 5 m, the truth's radius, cover):
 //! odometry that is locally right and never corrected, so a revisit is
 //! never near its first visit by pose — the pessimistic case for the
-//! verdicts' place tests.
+//! verdicts' place tests. A line is no odometry the drift envelope
+//! ([`drift`]) could judge (every revisit lies the whole path away), so
+//! such a replay turns the envelope off. `--replay-pose-drift` sends the
+//! poses as a drifting odometry would ([`pose_drift`](super::pose_drift)),
+//! and the table shows the envelope's `r` of the true and the false
+//! candidates sent.
 //!
 //! Results are grouped by visit: 1 = the first time at a place (a loop
 //! query without an earlier true place, or a pairs query without a match),
@@ -44,6 +49,7 @@ use humem_core::index::Index;
 use humem_core::keyframe::{Features, Pose, SemanticKeyframe, SessionKey};
 use humem_core::synthetic::Rng;
 use humem_core::verdict::{Verdict, VerificationKind};
+use humem_core::vpr::drift;
 use humem_core::vpr::eligibility::Scope;
 use humem_core::vpr::feedback::squared_distance;
 use humem_core::vpr::feedback::VerdictParams;
@@ -60,6 +66,9 @@ pub struct ReplayOptions {
     pub seed: u64,
     /// Factor on every stored position (1: the data set's metres).
     pub pose_scale: f64,
+    /// Drift of the poses sent, as a share of the path
+    /// ([`pose_drift`](super::pose_drift)); 0: the data set's poses.
+    pub pose_drift: f64,
 }
 
 /// A further pass with other verdict settings (`--replay-variant
@@ -97,9 +106,11 @@ impl std::str::FromStr for Variant {
 }
 
 impl Variant {
-    /// `base` with this variant's settings, checked.
-    pub fn apply(&self, base: &VerdictParams) -> anyhow::Result<VerdictParams> {
-        let mut p = base.clone();
+    /// `base` with this variant's settings (keys of `[vpr.verdicts]` and
+    /// `max_drift_ratio`), checked.
+    pub fn apply(&self, base: &VprParams) -> anyhow::Result<VprParams> {
+        let mut vpr = base.clone();
+        let p = &mut vpr.verdicts;
         for (key, value) in &self.settings {
             let bad = || {
                 anyhow::anyhow!(
@@ -122,15 +133,16 @@ impl Variant {
                 "max_threshold_raise" => {
                     p.max_threshold_raise = value.parse().map_err(|_| bad())?
                 }
+                "max_drift_ratio" => vpr.max_drift_ratio = value.parse().map_err(|_| bad())?,
                 other => anyhow::bail!(
-                    "--replay-variant {}: no verdict setting {other:?} (enabled, radius_steps, radius_m, max_penalty, support_gain, place_graph, half_life_hours, adapt_threshold, target_precision, geometry_miss_rate, min_verdicts, max_threshold_raise)",
+                    "--replay-variant {}: no setting {other:?} (max_drift_ratio, or of [vpr.verdicts]: enabled, radius_steps, radius_m, max_penalty, support_gain, place_graph, half_life_hours, adapt_threshold, target_precision, geometry_miss_rate, min_verdicts, max_threshold_raise)",
                     self.name
                 ),
             }
         }
-        p.validate()
+        vpr.validate()
             .map_err(|e| anyhow::anyhow!("--replay-variant {}: {e}", self.name))?;
-        Ok(p)
+        Ok(vpr)
     }
 }
 
@@ -164,6 +176,36 @@ pub struct ReplayRow {
     /// The false alarms themselves, in stream order: which queries without
     /// a true place were answered, and by what.
     pub false_alarm_list: Vec<FalseAlarm>,
+    /// `r` of the candidates sent (a loop's: distance over the path along
+    /// the stream between query and candidate, poses as sent), true and
+    /// false ones apart: what the drift envelope's bound has to separate.
+    pub drift_ratios: DriftRatios,
+}
+
+/// The drift envelope's `r` of candidates sent, true and false apart.
+#[derive(Debug, Clone, Default, PartialEq, Serialize)]
+pub struct DriftRatios {
+    /// `r` of the true candidates, ascending.
+    pub true_candidates: Vec<f64>,
+    /// `r` of the false candidates, ascending.
+    pub false_candidates: Vec<f64>,
+}
+
+impl DriftRatios {
+    /// `min / median / 95th percentile / max` of `values` (ascending).
+    fn spread(values: &[f64]) -> String {
+        if values.is_empty() {
+            return "–".into();
+        }
+        let at = |q: f64| values[((values.len() - 1) as f64 * q).round() as usize];
+        format!(
+            "{:.3} / {:.3} / {:.3} / {:.3}",
+            values[0],
+            at(0.5),
+            at(0.95),
+            values[values.len() - 1]
+        )
+    }
 }
 
 /// One query without a true place that was answered: what to look at
@@ -373,33 +415,55 @@ impl ReplayStream for LocalStream<'_> {
 }
 
 /// The keyframe poses of a data set: `(references, queries)` (for a loop,
-/// the same), the data set's own or the stand-in line.
+/// the same), the data set's own or the stand-in line, drifted by
+/// `options.pose_drift` and scaled by `options.pose_scale`.
 pub fn replay_poses(
     dir: &std::path::Path,
     dataset: &Dataset,
-    scale: f64,
+    options: &ReplayOptions,
 ) -> anyhow::Result<(Vec<Pose>, Vec<Pose>)> {
     let spacing = line_spacing(dataset);
-    let scaled = |poses: Vec<Pose>| -> Vec<Pose> {
-        poses
+    let sent = |poses: Vec<Pose>, seed: u64| -> Vec<Pose> {
+        super::pose_drift::drifted(&poses, options.pose_drift, seed)
             .into_iter()
             .map(|mut p| {
-                p.translation = p.translation.map(|t| t * scale);
+                p.translation = p.translation.map(|t| t * options.pose_scale);
                 p
             })
             .collect()
     };
-    let (references, queries) = match dataset.kind {
+    // The drift's own seeds, apart from the rejections' draws.
+    let seed = options.seed ^ 0xD21F_7000;
+    Ok(match dataset.kind {
         Kind::Loop => {
-            let p = poses_or_line(dir, "sequence", dataset.references.len(), spacing)?;
+            let p = sent(
+                poses_or_line(dir, "sequence", dataset.references.len(), spacing)?,
+                seed,
+            );
             (p.clone(), p)
         }
         Kind::Pairs => (
-            poses_or_line(dir, "reference", dataset.references.len(), spacing)?,
-            poses_or_line(dir, "query", dataset.queries.len(), spacing)?,
+            sent(
+                poses_or_line(dir, "reference", dataset.references.len(), spacing)?,
+                seed,
+            ),
+            sent(
+                poses_or_line(dir, "query", dataset.queries.len(), spacing)?,
+                seed + 1,
+            ),
         ),
+    })
+}
+
+/// Whether the data set has poses of its own (else the replay stands its
+/// frames along a line, which no drift bound fits: every revisit lies the
+/// whole path away).
+pub fn has_poses(dir: &std::path::Path, dataset: &Dataset) -> anyhow::Result<bool> {
+    let folder = match dataset.kind {
+        Kind::Loop => "sequence",
+        Kind::Pairs => "query",
     };
-    Ok((scaled(references), scaled(queries)))
+    Ok(dataset::poses(dir, folder)?.is_some())
 }
 
 /// Streams the data set in-process once without verdicts, once with the
@@ -419,31 +483,29 @@ pub async fn replay(
         threshold: params.threshold(),
         max_candidates: params.max_candidates,
     };
-    let poses = replay_poses(dir, dataset, options.pose_scale)?;
+    let poses = replay_poses(dir, dataset, &options)?;
+    let mut params = params.clone();
+    if !has_poses(dir, dataset)? {
+        // The stand-in line is no odometry: the drift envelope is off.
+        params.max_drift_ratio = drift::OFF_RATIO;
+    }
+    let with_verdicts = |enabled| VprParams {
+        verdicts: VerdictParams {
+            enabled,
+            ..params.verdicts.clone()
+        },
+        ..params.clone()
+    };
     let mut passes = vec![
-        (
-            "without verdicts".to_string(),
-            VerdictParams {
-                enabled: false,
-                ..params.verdicts.clone()
-            },
-        ),
-        (
-            "with verdicts".to_string(),
-            VerdictParams {
-                enabled: true,
-                ..params.verdicts.clone()
-            },
-        ),
+        ("without verdicts".to_string(), with_verdicts(false)),
+        ("with verdicts".to_string(), with_verdicts(true)),
     ];
     for v in variants {
-        passes.push((v.name.clone(), v.apply(&params.verdicts)?));
+        passes.push((v.name.clone(), v.apply(&params)?));
     }
     let mut rows = Vec::new();
-    for (pass, verdict_params) in passes {
-        let report = verdict_params.enabled;
-        let mut params = params.clone();
-        params.verdicts = verdict_params;
+    for (pass, params) in passes {
+        let report = params.verdicts.enabled;
         let dim = references.first().map_or(0, |f| f.descriptor.len());
         let mut stream = LocalStream {
             index: Index::new(dim),
@@ -481,6 +543,7 @@ pub(crate) async fn replay_pass<S: ReplayStream>(
     };
     // Per visit: the scored queries, their rankings and wrong rejections.
     let mut groups: BTreeMap<usize, Group> = BTreeMap::new();
+    let along = path_along(query_poses);
     let bar = super::progress::progress(query_poses.len(), pass);
     for (q, pose) in query_poses.iter().enumerate() {
         bar.inc(1);
@@ -534,6 +597,20 @@ pub(crate) async fn replay_pass<S: ReplayStream>(
             .take(point.max_candidates);
         for &(id, score) in sent {
             let truth = is_true(id);
+            if !pairs {
+                let distance = squared_distance(
+                    query_poses[q].translation,
+                    query_poses[id as usize].translation,
+                )
+                .sqrt();
+                let path = (along[q] - along[id as usize]).abs();
+                let r = if path > 0.0 { distance / path } else { 0.0 };
+                if truth {
+                    group.ratios.true_candidates.push(r);
+                } else {
+                    group.ratios.false_candidates.push(r);
+                }
+            }
             // Drawn for every candidate sent, in every pass alike.
             let missed = (rng.next() as f64 / u64::MAX as f64) < options.wrong_rejections;
             if truth && missed {
@@ -555,6 +632,9 @@ pub(crate) async fn replay_pass<S: ReplayStream>(
         all.answers.extend(group.answers.iter().cloned());
         all.wrong_rejections += group.wrong_rejections;
         all.false_alarms.extend(group.false_alarms.iter().cloned());
+        let r = &mut all.ratios;
+        r.true_candidates.extend(&group.ratios.true_candidates);
+        r.false_candidates.extend(&group.ratios.false_candidates);
     }
     all.false_alarms.sort_by_key(|f| f.query);
     rows.push(all.row(pass, "all", point));
@@ -568,6 +648,21 @@ struct Group {
     answers: Vec<(Vec<usize>, Vec<usize>)>,
     wrong_rejections: usize,
     false_alarms: Vec<FalseAlarm>,
+    ratios: DriftRatios,
+}
+
+/// The path driven up to each pose: the running sum of the distances
+/// between consecutive poses.
+fn path_along(poses: &[Pose]) -> Vec<f64> {
+    let mut walked = 0.0;
+    let mut along = Vec::with_capacity(poses.len());
+    for (i, pose) in poses.iter().enumerate() {
+        if i > 0 {
+            walked += squared_distance(poses[i - 1].translation, pose.translation).sqrt();
+        }
+        along.push(walked);
+    }
+    along
 }
 
 impl Group {
@@ -587,6 +682,12 @@ impl Group {
             candidates: p.candidates,
             wrong_rejections: self.wrong_rejections,
             false_alarm_list: self.false_alarms.clone(),
+            drift_ratios: {
+                let mut r = self.ratios.clone();
+                r.true_candidates.sort_by(f64::total_cmp);
+                r.false_candidates.sort_by(f64::total_cmp);
+                r
+            },
         }
     }
 }
@@ -622,6 +723,27 @@ pub fn table(rows: &[ReplayRow]) -> String {
             "\nFalse alarms (query frame → its top candidate: score, distance between them):\n",
         );
         out.extend(listed);
+    }
+    let measured: Vec<&ReplayRow> = rows
+        .iter()
+        .filter(|r| {
+            let d = &r.drift_ratios;
+            r.visit == "all" && !(d.true_candidates.is_empty() && d.false_candidates.is_empty())
+        })
+        .collect();
+    if !measured.is_empty() {
+        out.push_str("\nDistance over path, r, of the candidates sent (min / median / 95th percentile / max):\n\n| pass | true candidates | r | false candidates | r |\n| --- | --- | --- | --- | --- |\n");
+        for r in measured {
+            let d = &r.drift_ratios;
+            out.push_str(&format!(
+                "| {} | {} | {} | {} | {} |\n",
+                r.pass,
+                d.true_candidates.len(),
+                DriftRatios::spread(&d.true_candidates),
+                d.false_candidates.len(),
+                DriftRatios::spread(&d.false_candidates)
+            ));
+        }
     }
     out
 }
@@ -717,6 +839,7 @@ mod tests {
             wrong_rejections: 0.0,
             seed: 1,
             pose_scale: 1.0,
+            pose_drift: 0.0,
         };
         let rows = replay_pass(
             &mut stream,
@@ -759,11 +882,31 @@ mod tests {
                 },
             ]
         );
+        // On a line every candidate lies the whole path away: r = 1.
+        assert_eq!(all.drift_ratios.true_candidates, vec![1.0]);
+        assert_eq!(all.drift_ratios.false_candidates, vec![1.0; 3]);
         let printed = table(&rows);
         assert!(
             printed.contains("- with verdicts: 3 → 0: 0.500, 3.0 m; 5 → 1: 0.370, 4.0 m"),
             "{printed}"
         );
+        assert!(
+            printed.contains("| with verdicts | 1 | 1.000 / 1.000 / 1.000 / 1.000 | 3 |"),
+            "{printed}"
+        );
+    }
+
+    /// A variant sets the drift envelope's bound beside the verdicts'
+    /// settings, and a bad value names itself.
+    #[test]
+    fn a_variant_sets_the_drift_bound_and_verdict_settings() {
+        let v: Variant = "open:max_drift_ratio=1,max_penalty=0.5".parse().unwrap();
+        let p = v.apply(&VprParams::default()).unwrap();
+        assert_eq!(p.max_drift_ratio, 1.0);
+        assert_eq!(p.verdicts.max_penalty, 0.5);
+        let bad: Variant = "bad:max_drift_ratio=0".parse().unwrap();
+        let e = bad.apply(&VprParams::default()).unwrap_err().to_string();
+        assert!(e.contains("max_drift_ratio"), "{e}");
     }
 
     #[test]

@@ -89,6 +89,12 @@ pub fn candidate(c: &Candidate) -> proto::Candidate {
             verdict_support: c.verdict.support,
             verdict_rejections: c.verdict.rejections,
             verdict_acceptances: c.verdict.acceptances,
+            drift: c.drift.map(|d| proto::DriftEnvelope {
+                distance: d.distance,
+                path: d.path,
+                ratio: d.ratio(),
+                allowance: d.allowance,
+            }),
             text_conflicts: c
                 .text_conflicts
                 .iter()

@@ -16,6 +16,7 @@ use humem_core::keyframe::{Features, KeyframeKey, ObjectObservation, Pose};
 use humem_core::query::{self, IndexQuery};
 use humem_core::vpr::calibration::NullModel;
 use humem_core::vpr::contradiction::{Contradiction, MissingObject, TextConflict};
+use humem_core::vpr::drift::DriftEvidence;
 use humem_core::vpr::eligibility::{QueryContext, Scope};
 use humem_core::vpr::feedback::VerdictEffect;
 use humem_core::vpr::memory::KeyframeMemory;
@@ -123,6 +124,9 @@ pub struct Candidate {
     pub missing_objects: Vec<MissingPair>,
     /// What SLAM's verdicts did to the score.
     pub verdict: VerdictEffect,
+    /// The drift envelope's distance, path and allowance, for a candidate
+    /// of the query's own map (`humem_core::vpr::drift`).
+    pub drift: Option<DriftEvidence>,
 }
 
 /// The answer to a query.
@@ -391,6 +395,7 @@ fn candidate(index: &Index, current: &Features, r: RankedCandidate) -> Candidate
         text_conflicts,
         missing_objects,
         verdict: r.verdict,
+        drift: r.drift,
     }
 }
 
@@ -418,8 +423,9 @@ mod tests {
             frame_id: id,
             timestamp: id as f64,
             map_id,
+            // All at one place: only the view decides.
             pose: Pose {
-                translation: [id as f64, 0.0, 0.0],
+                translation: [0.0; 3],
                 rotation: [h.cos(), 0.0, 0.0, h.sin()],
             },
             features: Features {

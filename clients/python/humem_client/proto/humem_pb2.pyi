@@ -326,7 +326,7 @@ class TextMatch(_message.Message):
     def __init__(self, query_object: _Optional[int] = ..., candidate_object: _Optional[int] = ..., query_text: _Optional[str] = ..., candidate_text: _Optional[str] = ..., similarity: _Optional[float] = ..., score: _Optional[float] = ..., distinctiveness: _Optional[float] = ...) -> None: ...
 
 class Evidence(_message.Message):
-    __slots__ = ("scene_score", "descriptor_cosine", "scene_compatibility", "temporal_depth", "object_score", "text_score", "text_distinctiveness", "corroboration", "object_matches", "text_matches", "raw_score", "scene_confidence", "null_median", "null_samples", "contradiction", "text_contradiction", "object_absence", "text_conflicts", "missing_objects", "verdict_penalty", "verdict_support", "verdict_rejections", "verdict_acceptances")
+    __slots__ = ("scene_score", "descriptor_cosine", "scene_compatibility", "temporal_depth", "object_score", "text_score", "text_distinctiveness", "corroboration", "object_matches", "text_matches", "raw_score", "scene_confidence", "null_median", "null_samples", "contradiction", "text_contradiction", "object_absence", "text_conflicts", "missing_objects", "verdict_penalty", "verdict_support", "verdict_rejections", "verdict_acceptances", "drift")
     SCENE_SCORE_FIELD_NUMBER: _ClassVar[int]
     DESCRIPTOR_COSINE_FIELD_NUMBER: _ClassVar[int]
     SCENE_COMPATIBILITY_FIELD_NUMBER: _ClassVar[int]
@@ -350,6 +350,7 @@ class Evidence(_message.Message):
     VERDICT_SUPPORT_FIELD_NUMBER: _ClassVar[int]
     VERDICT_REJECTIONS_FIELD_NUMBER: _ClassVar[int]
     VERDICT_ACCEPTANCES_FIELD_NUMBER: _ClassVar[int]
+    DRIFT_FIELD_NUMBER: _ClassVar[int]
     scene_score: float
     descriptor_cosine: float
     scene_compatibility: float
@@ -373,7 +374,20 @@ class Evidence(_message.Message):
     verdict_support: float
     verdict_rejections: int
     verdict_acceptances: int
-    def __init__(self, scene_score: _Optional[float] = ..., descriptor_cosine: _Optional[float] = ..., scene_compatibility: _Optional[float] = ..., temporal_depth: _Optional[int] = ..., object_score: _Optional[float] = ..., text_score: _Optional[float] = ..., text_distinctiveness: _Optional[float] = ..., corroboration: _Optional[float] = ..., object_matches: _Optional[_Iterable[_Union[ObjectMatch, _Mapping]]] = ..., text_matches: _Optional[_Iterable[_Union[TextMatch, _Mapping]]] = ..., raw_score: _Optional[float] = ..., scene_confidence: _Optional[float] = ..., null_median: _Optional[float] = ..., null_samples: _Optional[int] = ..., contradiction: _Optional[float] = ..., text_contradiction: _Optional[float] = ..., object_absence: _Optional[float] = ..., text_conflicts: _Optional[_Iterable[_Union[TextConflict, _Mapping]]] = ..., missing_objects: _Optional[_Iterable[_Union[MissingObject, _Mapping]]] = ..., verdict_penalty: _Optional[float] = ..., verdict_support: _Optional[float] = ..., verdict_rejections: _Optional[int] = ..., verdict_acceptances: _Optional[int] = ...) -> None: ...
+    drift: DriftEnvelope
+    def __init__(self, scene_score: _Optional[float] = ..., descriptor_cosine: _Optional[float] = ..., scene_compatibility: _Optional[float] = ..., temporal_depth: _Optional[int] = ..., object_score: _Optional[float] = ..., text_score: _Optional[float] = ..., text_distinctiveness: _Optional[float] = ..., corroboration: _Optional[float] = ..., object_matches: _Optional[_Iterable[_Union[ObjectMatch, _Mapping]]] = ..., text_matches: _Optional[_Iterable[_Union[TextMatch, _Mapping]]] = ..., raw_score: _Optional[float] = ..., scene_confidence: _Optional[float] = ..., null_median: _Optional[float] = ..., null_samples: _Optional[int] = ..., contradiction: _Optional[float] = ..., text_contradiction: _Optional[float] = ..., object_absence: _Optional[float] = ..., text_conflicts: _Optional[_Iterable[_Union[TextConflict, _Mapping]]] = ..., missing_objects: _Optional[_Iterable[_Union[MissingObject, _Mapping]]] = ..., verdict_penalty: _Optional[float] = ..., verdict_support: _Optional[float] = ..., verdict_rejections: _Optional[int] = ..., verdict_acceptances: _Optional[int] = ..., drift: _Optional[_Union[DriftEnvelope, _Mapping]] = ...) -> None: ...
+
+class DriftEnvelope(_message.Message):
+    __slots__ = ("distance", "path", "ratio", "allowance")
+    DISTANCE_FIELD_NUMBER: _ClassVar[int]
+    PATH_FIELD_NUMBER: _ClassVar[int]
+    RATIO_FIELD_NUMBER: _ClassVar[int]
+    ALLOWANCE_FIELD_NUMBER: _ClassVar[int]
+    distance: float
+    path: float
+    ratio: float
+    allowance: float
+    def __init__(self, distance: _Optional[float] = ..., path: _Optional[float] = ..., ratio: _Optional[float] = ..., allowance: _Optional[float] = ...) -> None: ...
 
 class TextConflict(_message.Message):
     __slots__ = ("query_object", "candidate_object", "query_text", "candidate_text", "agreement", "conflict")

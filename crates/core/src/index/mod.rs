@@ -21,6 +21,8 @@
 //!   partition a scan visits;
 //! - `places`: SLAM's verdicts, the operating point they give, and where
 //!   stored keyframes are (map spacing, keyframes near a place);
+//! - `paths`: the length of a map's track between two of its keyframes
+//!   (the drift envelope's path);
 //! - `restore`: rebuilding the index from a snapshot;
 //! - `grouping`: sorting rows by map so a scoped scan reads long runs;
 //! - `neighbours`: the neighbour graph (the approximate first stage of a
@@ -36,6 +38,7 @@ mod grouping;
 mod map_graphs;
 mod memory;
 mod neighbours;
+mod paths;
 mod places;
 mod restore;
 mod table;

@@ -25,7 +25,9 @@
 //! The rules on top of the paper: [`feedback`] (what SLAM's geometric
 //! verdicts do to a ranking: known look-alikes lose score, verified places
 //! gain it), [`operating_point`] (the threshold those verdicts estimate),
-//! [`viewpoint`] (views of the query's own map turned away from it).
+//! [`viewpoint`] (views of the query's own map turned away from it),
+//! [`drift`] (candidates of the query's own map farther away than the
+//! map's drift explains).
 //!
 //! Supporting modules: [`params`] (every constant, configurable),
 //! [`eligibility`] (which stored keyframes may be proposed), [`memory`] (the
@@ -39,6 +41,7 @@ pub mod appearance;
 mod assignment;
 pub mod calibration;
 pub mod contradiction;
+pub mod drift;
 pub mod eligibility;
 pub mod feedback;
 pub mod fusion;

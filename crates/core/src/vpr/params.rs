@@ -117,6 +117,11 @@ pub struct VprParams {
     /// turned further away cannot show the same place to a perspective
     /// camera and is left out. 180: off (fisheye and 360° cameras).
     pub max_view_change_deg: f64,
+    /// The drift envelope's bound ([`super::drift`]): a candidate of the
+    /// query's own map lying farther from it than this share of the path
+    /// between them, plus the same-place radius, is left out. 1: off
+    /// (maps whose poses are not one continuous odometry).
+    pub max_drift_ratio: f64,
     /// `ω_r`, importance of semantic class `r` in `S_o`.
     pub class_weights: BTreeMap<String, f32>,
     /// `ω_r` of classes not listed in `class_weights`.
@@ -225,6 +230,7 @@ impl Default for VprParams {
             absence_min_area: 0.01,
             max_candidates: 5,
             max_view_change_deg: 60.0,
+            max_drift_ratio: 0.1,
             class_weights: BTreeMap::new(),
             default_class_weight: 1.0,
             generic_words: GENERIC_WORDS.iter().map(|w| w.to_string()).collect(),
@@ -319,6 +325,9 @@ impl VprParams {
         }
         if !(self.max_view_change_deg > 0.0 && self.max_view_change_deg <= 180.0) {
             return Err("max_view_change_deg must be in (0, 180]".to_string());
+        }
+        if !(self.max_drift_ratio > 0.0 && self.max_drift_ratio <= 1.0) {
+            return Err("max_drift_ratio must be in (0, 1]".to_string());
         }
         for (class, w) in &self.class_weights {
             non_negative(&format!("class_weights[{class}]"), *w)?;
@@ -458,6 +467,7 @@ mod tests {
                 "max_view_change_deg",
                 Box::new(|p| p.max_view_change_deg = f64::NAN),
             ),
+            ("max_drift_ratio", Box::new(|p| p.max_drift_ratio = 0.0)),
             (
                 "class_weights[sign]",
                 Box::new(|p| {

@@ -15,6 +15,7 @@ use crate::engine::filter::RowFilter;
 use crate::keyframe::Features;
 use crate::vpr::calibration::NullModel;
 use crate::vpr::contradiction::{contradiction, Contradiction};
+use crate::vpr::drift::DriftEvidence;
 use crate::vpr::feedback::VerdictEffect;
 use crate::vpr::fusion::{corroboration, fuse, fuse_with_contradiction};
 use crate::vpr::memory::KeyframeMemory;
@@ -61,6 +62,10 @@ pub struct RankedCandidate {
     /// What the verdicts did to `score` (nothing until
     /// [`feedback::apply`](crate::vpr::feedback::apply) runs).
     pub verdict: VerdictEffect,
+    /// The drift envelope's measure of a candidate of the query's own map
+    /// ([`drift`](crate::vpr::drift)); `None` for other maps, a query
+    /// without a stored keyframe, or before the rule runs.
+    pub drift: Option<DriftEvidence>,
 }
 
 /// Puts candidates in their final order (after their scores changed).
@@ -217,6 +222,7 @@ where
                 contradiction: against,
                 corroboration: b,
                 verdict: Default::default(),
+                drift: None,
             }
         })
         .collect();
@@ -460,6 +466,7 @@ mod tests {
             raw_score: score,
             score,
             verdict: Default::default(),
+            drift: None,
         }
     }
 

@@ -86,6 +86,7 @@ fn keyframe(robot: &str, id: u64, dim: usize) -> proto::Keyframe {
         "bench",
         id,
         id as f64 / 10.0,
+        [id as f64, 0.0, 0.0],
         proto::keyframe::Content::Features(proto::Features {
             global_descriptor: descriptor(dim, seed),
             ..Default::default()

@@ -182,6 +182,30 @@ enum Content {
 }
 
 impl Content {
+    /// Where robot `robot` is at keyframe `tick`: where what it sees is, so
+    /// that a revisit stands where the map put the first visit (as a
+    /// SLAM map's poses have it, and as the drift envelope expects). The
+    /// images are passed in turn around a loop of one metre per image;
+    /// the `places` descriptors' places stand 10 m apart along x; the
+    /// drifting sinusoid repeats around a loop of 200 m.
+    fn position(&self, robot: usize, tick: u64) -> [f64; 3] {
+        let around = |step: u64, len: u64| {
+            let radius = len as f64 / std::f64::consts::TAU;
+            let angle = std::f64::consts::TAU * (step % len) as f64 / len as f64;
+            [radius * angle.cos(), radius * angle.sin(), 0.0]
+        };
+        match self {
+            Content::Images(images) => {
+                around(robot as u64 * 7919 + tick, images.len().max(1) as u64)
+            }
+            Content::Synthetic(_, Descriptors::Places) => {
+                let place = place_of(PLACES, robot as u64, tick);
+                [10.0 * place as f64 + 0.5 * (tick % 4) as f64, 0.0, 0.0]
+            }
+            Content::Synthetic(_, Descriptors::Drift) => around(tick, 200),
+        }
+    }
+
     fn keyframe_content(&self, robot: usize, tick: u64) -> proto::keyframe::Content {
         match self {
             Content::Images(images) => {
@@ -201,13 +225,14 @@ impl Content {
     }
 }
 
-/// A simulated robot's keyframe `tick`: frame `3 tick`, map 0, moving one
-/// metre along x per keyframe.
+/// A simulated robot's keyframe `tick`: frame `3 tick`, map 0, its camera
+/// at `position`.
 pub(crate) fn keyframe(
     robot_id: &str,
     session_id: &str,
     tick: u64,
     timestamp: f64,
+    position: [f64; 3],
     content: proto::keyframe::Content,
 ) -> proto::Keyframe {
     proto::Keyframe {
@@ -219,9 +244,9 @@ pub(crate) fn keyframe(
         map_id: Some(0),
         pose: Some(proto::Pose {
             translation: Some(proto::Vec3 {
-                x: tick as f64,
-                y: 0.0,
-                z: 0.0,
+                x: position[0],
+                y: position[1],
+                z: position[2],
             }),
             rotation: Some(proto::Quaternion {
                 w: 1.0,
@@ -261,6 +286,7 @@ async fn robot(
             "load",
             tick,
             tick as f64 * period.as_secs_f64(),
+            content.position(robot, tick),
             content.keyframe_content(robot, tick),
         );
         let query_content =
