@@ -134,7 +134,9 @@ impl Index {
         let Some(row) = self.row_of(key) else {
             return false;
         };
-        self.forget_spacing(&self.rows[row].map_key());
+        let map = self.rows[row].map_key();
+        self.forget_spacing(&map);
+        self.forget_path_from(&map, key.keyframe_id);
         self.changes += 1;
         self.rows[row].pose = pose;
         if let Some(map_id) = map_id {
@@ -155,10 +157,11 @@ impl Index {
         let map = self.rows[row].map_key();
         let id = self.rows[row].key.keyframe_id;
         self.forget_spacing(&map);
-        let track = self.tracks.entry(map).or_default();
+        let track = self.tracks.entry(map.clone()).or_default();
         track.insert(id, row);
         let prev = track.range(..id).next_back().map(|(_, &r)| r);
         let next = track.range(id + 1..).next().map(|(_, &r)| r);
+        self.forget_path_from(&map, id);
         self.set_prev(row, prev);
         if let Some(next) = next {
             self.set_prev(next, Some(row));
@@ -179,6 +182,7 @@ impl Index {
         if track.is_empty() {
             self.tracks.remove(&map);
         }
+        self.forget_path_from(&map, id);
         if let Some(next) = next {
             self.set_prev(next, prev);
         }

@@ -6,7 +6,7 @@ use std::sync::PoisonError;
 
 use crate::keyframe::KeyframeKey;
 use crate::verdict::{Verdict, VerdictBook, VerificationKind};
-use crate::vpr::feedback::{squared_distance, Place, VerdictParams};
+use crate::vpr::feedback::{Place, VerdictParams};
 use crate::vpr::operating_point::{self, OperatingPoint, Sample};
 use crate::vpr::params::VprParams;
 
@@ -119,24 +119,16 @@ impl Index {
     /// stored positions of its consecutive keyframes (by keyframe id); 0
     /// for an unknown map or one of a single keyframe. The verdicts'
     /// same-place radius is measured in it ([`feedback`](crate::vpr::feedback)), since a
-    /// map's units need not be metres. Computed once per change of the
-    /// map (one pass over its keyframes) and cached.
+    /// map's units need not be metres. The median of the map's kept track
+    /// steps ([`paths`](super::paths)), once per change of the map, cached.
     pub fn map_spacing(&self, map: &MapKey) -> f64 {
         let mut cache = self.spacings.lock().unwrap_or_else(PoisonError::into_inner);
         if let Some(&spacing) = cache.get(map) {
             return spacing;
         }
-        let Some(track) = self.tracks.get(map) else {
+        let Some(mut steps) = self.track_path(map, |path| path.steps().to_vec()) else {
             return 0.0;
         };
-        let positions: Vec<[f64; 3]> = track
-            .values()
-            .map(|&row| self.rows[row].pose.translation)
-            .collect();
-        let mut steps: Vec<f64> = positions
-            .windows(2)
-            .map(|w| squared_distance(w[0], w[1]).sqrt())
-            .collect();
         let spacing = if steps.is_empty() {
             0.0
         } else {

@@ -102,6 +102,9 @@ pub struct Index {
     /// Each map's keyframe spacing once computed ([`Index::map_spacing`]);
     /// a map's entry is dropped when its track or a pose in it changes.
     pub(super) spacings: Mutex<HashMap<MapKey, f64>>,
+    /// Each map's track as a path, kept as far as no change touched it
+    /// ([`paths`](super::paths)).
+    pub(super) paths: Mutex<HashMap<MapKey, TrackPath>>,
     /// Rows `0..grouped` were grouped by map; the rows after them were
     /// appended since (see [`grouping`]).
     pub(super) grouped: usize,
@@ -131,6 +134,38 @@ pub struct Index {
     /// Keyframes from which a map gets a neighbour graph of its own (0:
     /// none; see `map_graphs`).
     pub(super) map_graphs_from: usize,
+}
+
+/// A map's track as a path: its keyframe ids ascending, the path driven
+/// from the first to each, and the step into each (0 for the first). A
+/// prefix of the track; `Index::track_path` completes it (see `paths`).
+#[derive(Debug, Clone, Default)]
+pub(super) struct TrackPath {
+    pub(super) ids: Vec<u64>,
+    pub(super) along: Vec<f64>,
+    pub(super) steps: Vec<f64>,
+}
+
+impl TrackPath {
+    /// Forgets keyframe `id` and every one after it: a change to `id`
+    /// changes the path to each of them and to nothing before.
+    pub(super) fn keep_before(&mut self, id: u64) {
+        let keep = self.ids.partition_point(|&i| i < id);
+        self.ids.truncate(keep);
+        self.along.truncate(keep);
+        self.steps.truncate(keep);
+    }
+
+    /// The path driven from the track's start to keyframe `id`.
+    pub(super) fn at(&self, id: u64) -> Option<f64> {
+        let i = self.ids.binary_search(&id).ok()?;
+        Some(self.along[i])
+    }
+
+    /// The distances between consecutive keyframes of the track.
+    pub(super) fn steps(&self) -> &[f64] {
+        self.steps.get(1..).unwrap_or_default()
+    }
 }
 
 /// The neighbour graph and the rows its keys name (see `neighbours`).
@@ -192,6 +227,7 @@ impl Index {
             verdicts: VerdictBook::new(),
             operating_point: Mutex::new(None),
             spacings: Mutex::new(HashMap::new()),
+            paths: Mutex::new(HashMap::new()),
             grouped: 0,
             displaced: Vec::new(),
             layout_epoch: 0,

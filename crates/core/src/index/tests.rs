@@ -222,3 +222,104 @@ fn document_frequency_counts_keyframes() {
     assert_eq!(index.text_document_frequency(&exit), 1);
     assert_eq!(index.keyframe_count(), 2);
 }
+
+mod kept_paths {
+    use super::*;
+    use proptest::prelude::*;
+
+    /// What a change does to the store: a keyframe of one session stored
+    /// (or replaced) at `x`, erased, its pose updated to `x`, or moved to
+    /// another map; or a query, which extends the kept paths.
+    #[derive(Debug, Clone)]
+    enum Change {
+        Store { id: u8, map: u8, x: i16 },
+        Erase { id: u8 },
+        Correct { id: u8, x: i16 },
+        Move { id: u8, map: u8 },
+        Ask { id: u8 },
+    }
+
+    fn change() -> impl Strategy<Value = Change> {
+        prop_oneof![
+            4 => (0..40u8, 0..2u8, -500..500i16).prop_map(|(id, map, x)| Change::Store { id, map, x }),
+            1 => (0..40u8).prop_map(|id| Change::Erase { id }),
+            2 => (0..40u8, -500..500i16).prop_map(|(id, x)| Change::Correct { id, x }),
+            1 => (0..40u8, 0..2u8).prop_map(|(id, map)| Change::Move { id, map }),
+            3 => (0..40u8).prop_map(|id| Change::Ask { id }),
+        ]
+    }
+
+    fn key(id: u8) -> KeyframeKey {
+        kf_of("r", "s", u64::from(id), 0).key
+    }
+
+    fn at(x: i16) -> Pose {
+        Pose {
+            translation: [f64::from(x), f64::from(x % 7), 0.0],
+            ..Pose::default()
+        }
+    }
+
+    /// The path between `row` and every row of its map, walked from
+    /// scratch over its track.
+    fn walked(index: &Index, row: usize) -> Vec<Option<f64>> {
+        let mut along = std::collections::HashMap::new();
+        let (mut walked, mut previous) = (0.0, None);
+        for (&id, &r) in &index.tracks[&index.meta(row).map_key()] {
+            let here = index.meta(r).pose.translation;
+            if let Some(p) = previous {
+                walked += crate::vpr::feedback::squared_distance(p, here).sqrt();
+            }
+            previous = Some(here);
+            along.insert(id, walked);
+        }
+        let query = along[&index.meta(row).key.keyframe_id];
+        (0..index.len())
+            .map(|r| {
+                let same = index.meta(r).same_map(index.meta(row));
+                same.then(|| (along[&index.meta(r).key.keyframe_id] - query).abs())
+            })
+            .collect()
+    }
+
+    proptest! {
+        /// Whatever changes come between the queries, the kept paths give
+        /// exactly the paths of a walk from scratch, and the spacing its
+        /// median step.
+        #[test]
+        fn kept_paths_equal_a_walk_from_scratch(changes in proptest::collection::vec(change(), 1..150)) {
+            let mut index = Index::new(0);
+            for change in changes {
+                match change {
+                    Change::Store { id, map, x } => {
+                        let mut kf = kf_of("r", "s", u64::from(id), u64::from(map));
+                        kf.pose = at(x);
+                        index.upsert(kf);
+                    }
+                    Change::Erase { id } => {
+                        index.remove(&key(id));
+                    }
+                    Change::Correct { id, x } => {
+                        index.update_pose(&key(id), at(x), None);
+                    }
+                    Change::Move { id, map } => {
+                        if let Some(row) = index.row_of(&key(id)) {
+                            let pose = index.meta(row).pose;
+                            index.update_pose(&key(id), pose, Some(u64::from(map)));
+                        }
+                    }
+                    Change::Ask { id } => {
+                        if let Some(row) = index.row_of(&key(id)) {
+                            let rows: Vec<usize> = (0..index.len()).collect();
+                            prop_assert_eq!(index.track_paths(row, &rows), walked(&index, row));
+                        }
+                    }
+                }
+            }
+            for row in 0..index.len() {
+                let rows: Vec<usize> = (0..index.len()).collect();
+                prop_assert_eq!(index.track_paths(row, &rows), walked(&index, row));
+            }
+        }
+    }
+}
