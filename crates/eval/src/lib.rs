@@ -28,6 +28,7 @@
 //!   (`--replay-pose-drift`);
 //!
 //! `humem eval`, bottom up:
+//! - [`replay_rows`]: the replay's rows and their tables;
 //! - [`verdict_replay`]: the stream replayed with the ground truth as
 //!   geometric verification, without and with verdicts (`--replay-verdicts`);
 //! - [`args`]: its options and the layer configurations they name;
@@ -70,6 +71,7 @@ pub mod precision;
 mod progress;
 pub mod protocol;
 pub mod remote;
+pub mod replay_rows;
 pub mod report;
 pub mod restart_bench;
 pub mod run;

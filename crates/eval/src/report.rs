@@ -13,7 +13,7 @@ use serde::Serialize;
 use crate::args::ObjectSource;
 use crate::metrics::{LatencyStats, Retrieval};
 use crate::precision::Precision;
-use crate::verdict_replay::{self, ReplayRow};
+use crate::replay_rows::{self, ReplayRow};
 
 /// One method's numbers under one condition.
 #[derive(Debug, Clone, Serialize)]
@@ -147,7 +147,7 @@ pub(crate) fn print_table(report: &EvalReport) {
     }
     if let Some(rows) = &report.verdict_replay {
         println!("\n{}", replay_heading(report));
-        print!("{}", verdict_replay::table(rows));
+        print!("{}", replay_rows::table(rows));
     }
 }
 
@@ -187,7 +187,7 @@ pub(crate) fn markdown(report: &EvalReport) -> String {
         md.push_str(&format!(
             "\n{}\n\n{}",
             replay_heading(report),
-            verdict_replay::table(rows)
+            replay_rows::table(rows)
         ));
     }
     md.push_str(

@@ -39,11 +39,11 @@
 use std::collections::BTreeMap;
 
 use anyhow::Context;
-use serde::Serialize;
 
 use super::dataset::{self, Dataset};
 use super::metrics;
 use super::precision::{self, OperatingPoint, ScoredQuery};
+use super::replay_rows::{FalseAlarm, ReplayRow, TrueAndFalse, SPREAD_OF_TOP};
 use super::truth::Kind;
 use humem_core::index::Index;
 use humem_core::keyframe::{Features, Pose, SemanticKeyframe, SessionKey};
@@ -144,86 +144,6 @@ impl Variant {
             .map_err(|e| anyhow::anyhow!("--replay-variant {}: {e}", self.name))?;
         Ok(vpr)
     }
-}
-
-/// One row of the replay table.
-#[derive(Debug, Clone, Serialize)]
-pub struct ReplayRow {
-    /// `without verdicts` or `with verdicts`.
-    pub pass: String,
-    /// `1`, `2`, … (see the module doc) or `all`.
-    pub visit: String,
-    /// Queries in the group.
-    pub queries: usize,
-    /// Of those, queries with a true place.
-    pub with_match: usize,
-    /// Queries without a true place that were answered (any candidate above
-    /// the threshold), over those queries.
-    pub false_alarm_rate: f64,
-    /// Answered false alarms.
-    pub false_alarms: usize,
-    /// Recall@1 over the queries with a true place, whatever the threshold.
-    pub recall_at_1: f64,
-    /// Queries with a true place whose top candidate is true and above the
-    /// threshold, over those queries.
-    pub recall_at_threshold: f64,
-    /// True candidates over candidates sent to verification.
-    pub candidate_precision: f64,
-    /// Candidates sent to verification (= verdicts reported, with verdicts).
-    pub candidates: usize,
-    /// Verdicts that were rejections of true places (geometry's misses).
-    pub wrong_rejections: usize,
-    /// The false alarms themselves, in stream order: which queries without
-    /// a true place were answered, and by what.
-    pub false_alarm_list: Vec<FalseAlarm>,
-    /// `r` of the candidates sent (a loop's: distance over the path along
-    /// the stream between query and candidate, poses as sent), true and
-    /// false ones apart: what the drift envelope's bound has to separate.
-    pub drift_ratios: DriftRatios,
-}
-
-/// The drift envelope's `r` of candidates sent, true and false apart.
-#[derive(Debug, Clone, Default, PartialEq, Serialize)]
-pub struct DriftRatios {
-    /// `r` of the true candidates, ascending.
-    pub true_candidates: Vec<f64>,
-    /// `r` of the false candidates, ascending.
-    pub false_candidates: Vec<f64>,
-}
-
-impl DriftRatios {
-    /// `min / median / 95th percentile / max` of `values` (ascending).
-    fn spread(values: &[f64]) -> String {
-        if values.is_empty() {
-            return "–".into();
-        }
-        let at = |q: f64| values[((values.len() - 1) as f64 * q).round() as usize];
-        format!(
-            "{:.3} / {:.3} / {:.3} / {:.3}",
-            values[0],
-            at(0.5),
-            at(0.95),
-            values[values.len() - 1]
-        )
-    }
-}
-
-/// One query without a true place that was answered: what to look at
-/// when a replay's false alarms are too many (a look-alike place, a near
-/// miss just outside the truth's radius, a view across a junction).
-#[derive(Debug, Clone, PartialEq, Serialize)]
-pub struct FalseAlarm {
-    /// The query's frame index.
-    pub query: usize,
-    /// Its top candidate's frame index (a reference's, in a pairs set).
-    pub candidate: u64,
-    /// The candidate's score.
-    pub score: f32,
-    /// The threshold it was above.
-    pub threshold: f32,
-    /// Distance between the two stored positions: metres where the data
-    /// set has poses, the stand-in line's otherwise.
-    pub distance: f64,
 }
 
 /// A keyframe of the stream: as the evaluation stores one, at `pose`.
@@ -565,6 +485,12 @@ pub(crate) async fn replay_pass<S: ReplayStream>(
         let has_match = matches.is_some_and(|m| !m.is_empty());
         let group = groups.entry(visit_of(matches, gap)).or_default();
         if let Some(&(candidate, score)) = ranked.first().filter(|&&(_, s)| s > threshold) {
+            let top: Vec<[f64; 3]> = ranked
+                .iter()
+                .take(SPREAD_OF_TOP)
+                .map(|&(id, _)| reference_poses[id as usize].translation)
+                .collect();
+            group.spreads.push(is_true(candidate), spread(&top));
             if !has_match {
                 let at = |poses: &[Pose], i: u64| poses[i as usize].translation;
                 group.false_alarms.push(FalseAlarm {
@@ -605,11 +531,7 @@ pub(crate) async fn replay_pass<S: ReplayStream>(
                 .sqrt();
                 let path = (along[q] - along[id as usize]).abs();
                 let r = if path > 0.0 { distance / path } else { 0.0 };
-                if truth {
-                    group.ratios.true_candidates.push(r);
-                } else {
-                    group.ratios.false_candidates.push(r);
-                }
+                group.ratios.push(truth, r);
             }
             // Drawn for every candidate sent, in every pass alike.
             let missed = (rng.next() as f64 / u64::MAX as f64) < options.wrong_rejections;
@@ -632,9 +554,8 @@ pub(crate) async fn replay_pass<S: ReplayStream>(
         all.answers.extend(group.answers.iter().cloned());
         all.wrong_rejections += group.wrong_rejections;
         all.false_alarms.extend(group.false_alarms.iter().cloned());
-        let r = &mut all.ratios;
-        r.true_candidates.extend(&group.ratios.true_candidates);
-        r.false_candidates.extend(&group.ratios.false_candidates);
+        all.ratios.extend(&group.ratios);
+        all.spreads.extend(&group.spreads);
     }
     all.false_alarms.sort_by_key(|f| f.query);
     rows.push(all.row(pass, "all", point));
@@ -648,7 +569,24 @@ struct Group {
     answers: Vec<(Vec<usize>, Vec<usize>)>,
     wrong_rejections: usize,
     false_alarms: Vec<FalseAlarm>,
-    ratios: DriftRatios,
+    ratios: TrueAndFalse,
+    spreads: TrueAndFalse,
+}
+
+/// Root mean square distance of `positions` from their centroid.
+fn spread(positions: &[[f64; 3]]) -> f64 {
+    if positions.is_empty() {
+        return 0.0;
+    }
+    let n = positions.len() as f64;
+    let mut centre = [0.0; 3];
+    for p in positions {
+        for (c, x) in centre.iter_mut().zip(p) {
+            *c += x / n;
+        }
+    }
+    let square: f64 = positions.iter().map(|&p| squared_distance(p, centre)).sum();
+    (square / n).sqrt()
 }
 
 /// The path driven up to each pose: the running sum of the distances
@@ -682,89 +620,16 @@ impl Group {
             candidates: p.candidates,
             wrong_rejections: self.wrong_rejections,
             false_alarm_list: self.false_alarms.clone(),
-            drift_ratios: {
-                let mut r = self.ratios.clone();
-                r.true_candidates.sort_by(f64::total_cmp);
-                r.false_candidates.sort_by(f64::total_cmp);
-                r
-            },
+            drift_ratios: self.ratios.sorted(),
+            top_spread: self.spreads.sorted(),
         }
     }
-}
-
-/// The rows as a Markdown table.
-pub fn table(rows: &[ReplayRow]) -> String {
-    let mut out = String::from(
-        "| pass | visit | queries | with a true place | false alarms | R@1 | recall at threshold | candidate precision | candidates (verdicts) | true places rejected |\n| --- | --- | --- | --- | --- | --- | --- | --- | --- | --- |\n",
-    );
-    for r in rows {
-        out.push_str(&format!(
-            "| {} | {} | {} | {} | {} ({:.1} %) | {:.3} | {:.3} | {:.3} | {} | {} |\n",
-            r.pass,
-            r.visit,
-            r.queries,
-            r.with_match,
-            r.false_alarms,
-            100.0 * r.false_alarm_rate,
-            r.recall_at_1,
-            r.recall_at_threshold,
-            r.candidate_precision,
-            r.candidates,
-            r.wrong_rejections
-        ));
-    }
-    let listed: Vec<String> = rows
-        .iter()
-        .filter(|r| r.visit == "all" && !r.false_alarm_list.is_empty())
-        .map(|r| format!("- {}: {}\n", r.pass, false_alarm_line(&r.false_alarm_list)))
-        .collect();
-    if !listed.is_empty() {
-        out.push_str(
-            "\nFalse alarms (query frame → its top candidate: score, distance between them):\n",
-        );
-        out.extend(listed);
-    }
-    let measured: Vec<&ReplayRow> = rows
-        .iter()
-        .filter(|r| {
-            let d = &r.drift_ratios;
-            r.visit == "all" && !(d.true_candidates.is_empty() && d.false_candidates.is_empty())
-        })
-        .collect();
-    if !measured.is_empty() {
-        out.push_str("\nDistance over path, r, of the candidates sent (min / median / 95th percentile / max):\n\n| pass | true candidates | r | false candidates | r |\n| --- | --- | --- | --- | --- |\n");
-        for r in measured {
-            let d = &r.drift_ratios;
-            out.push_str(&format!(
-                "| {} | {} | {} | {} | {} |\n",
-                r.pass,
-                d.true_candidates.len(),
-                DriftRatios::spread(&d.true_candidates),
-                d.false_candidates.len(),
-                DriftRatios::spread(&d.false_candidates)
-            ));
-        }
-    }
-    out
-}
-
-/// `191 → 40: 0.371, 47.7 m; …`.
-fn false_alarm_line(alarms: &[FalseAlarm]) -> String {
-    alarms
-        .iter()
-        .map(|f| {
-            format!(
-                "{} → {}: {:.3}, {:.1} m",
-                f.query, f.candidate, f.score, f.distance
-            )
-        })
-        .collect::<Vec<_>>()
-        .join("; ")
 }
 
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::replay_rows::table;
 
     /// A stream whose answers are written out by the test, and which keeps
     /// what it was told: the accounting of [`replay_pass`] on its own.
@@ -885,6 +750,11 @@ mod tests {
         // On a line every candidate lies the whole path away: r = 1.
         assert_eq!(all.drift_ratios.true_candidates, vec![1.0]);
         assert_eq!(all.drift_ratios.false_candidates, vec![1.0; 3]);
+        // Answered: 3 (top 0, false) and 4 (top 0, true) with frames 0
+        // and 1 in their top five (0.5 from their centre), 5 (top 1,
+        // false) with frame 1 alone.
+        assert_eq!(all.top_spread.true_candidates, vec![0.5]);
+        assert_eq!(all.top_spread.false_candidates, vec![0.0, 0.5]);
         let printed = table(&rows);
         assert!(
             printed.contains("- with verdicts: 3 → 0: 0.500, 3.0 m; 5 → 1: 0.370, 4.0 m"),
