@@ -410,6 +410,25 @@ async fn a_generic_sign_where_a_distinctive_one_should_be_speaks_against() {
     );
 }
 
+/// The whole ranking (threshold 0, up to 50) for stored keyframe 300 of
+/// robot "r" in `scope`, from a server started with `env` holding
+/// `keyframes`.
+async fn whole_ranking_of_300(
+    env: &[&str],
+    keyframes: &[proto::Keyframe],
+    scope: proto::Scope,
+) -> proto::QueryResponse {
+    let dir = tempfile::tempdir().unwrap();
+    let server = Server::start_with(dir.path(), env);
+    let mut client = server.client().await;
+    insert_all(&mut client, keyframes.to_vec()).await;
+    let mut query = query_stored("r", "s", 300);
+    query.scope = scope as i32;
+    query.threshold = Some(0.0);
+    query.top_n = Some(50);
+    client.query(query).await.unwrap().into_inner()
+}
+
 /// `kf` with its camera turned by `yaw_deg` about the map's z axis.
 fn turned(mut kf: proto::Keyframe, yaw_deg: f64) -> proto::Keyframe {
     let h = yaw_deg.to_radians() / 2.0;
@@ -452,15 +471,7 @@ async fn a_loop_query_leaves_out_views_of_its_map_turned_away_from_it() {
         (&[][..], true),
         (&["HUMEM_VPR__MAX_VIEW_CHANGE_DEG=180"][..], false),
     ] {
-        let dir = tempfile::tempdir().unwrap();
-        let server = Server::start_with(dir.path(), env);
-        let mut client = server.client().await;
-        insert_all(&mut client, keyframes.clone()).await;
-        let mut query = query_stored("r", "s", 300);
-        query.scope = proto::Scope::AllMaps as i32;
-        query.threshold = Some(0.0);
-        query.top_n = Some(50);
-        let reply = client.query(query).await.unwrap().into_inner();
+        let reply = whole_ranking_of_300(env, &keyframes, proto::Scope::AllMaps).await;
         let ids: Vec<u64> = reply.candidates.iter().map(|c| c.keyframe_id).collect();
         assert!(ids.contains(&2) && ids.contains(&40), "{env:?}: {ids:?}");
         assert_eq!(ids.contains(&1), !left_out, "{env:?}: {ids:?}");
@@ -507,15 +518,7 @@ async fn a_loop_query_leaves_out_a_look_alike_farther_than_the_maps_drift() {
         (&[][..], true),
         (&["HUMEM_VPR__MAX_DRIFT_RATIO=1"][..], false),
     ] {
-        let dir = tempfile::tempdir().unwrap();
-        let server = Server::start_with(dir.path(), env);
-        let mut client = server.client().await;
-        insert_all(&mut client, keyframes.clone()).await;
-        let mut query = query_stored("r", "s", 300);
-        query.scope = proto::Scope::SameMap as i32;
-        query.threshold = Some(0.0);
-        query.top_n = Some(50);
-        let reply = client.query(query).await.unwrap().into_inner();
+        let reply = whole_ranking_of_300(env, &keyframes, proto::Scope::SameMap).await;
         let ids: Vec<u64> = reply.candidates.iter().map(|c| c.keyframe_id).collect();
         assert_eq!(ids.contains(&20), !left_out, "{env:?}: {ids:?}");
         let first_visit = reply.candidates.iter().find(|c| c.keyframe_id == 1);

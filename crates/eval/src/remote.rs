@@ -306,8 +306,8 @@ impl Remote {
             threshold: params.threshold(),
             max_candidates: params.max_candidates,
         };
-        let poses = verdict_replay::replay_poses(dir, dataset, &options)?;
-        if !verdict_replay::has_poses(dir, dataset)? {
+        let (poses, own_poses) = verdict_replay::replay_poses(dir, dataset, &options)?;
+        if !own_poses {
             tracing::warn!(
                 "{} has no poses: the replay stands its frames along a line, and a server's drift envelope leaves out every revisit on it; replay it against a server run with vpr.max_drift_ratio = 1",
                 dataset.name

@@ -172,33 +172,40 @@ pub fn line_spacing(dataset: &Dataset) -> f64 {
     (10.0 / per_pass[per_pass.len() / 2]).clamp(0.1, 10.0)
 }
 
-/// The data set's poses of `folder`, or the line at `spacing` metres.
+/// The data set's poses of `folder` (`true`), or the line at `spacing`
+/// metres (`false`).
 fn poses_or_line(
     dir: &std::path::Path,
     folder: &str,
     len: usize,
     spacing: f64,
-) -> anyhow::Result<Vec<Pose>> {
-    match dataset::poses(dir, folder)? {
-        Some(poses) if poses.len() == len => Ok(poses
-            .iter()
-            .map(|p| Pose {
-                translation: [p.t.x, p.t.y, p.t.z],
-                rotation: [p.r.w, p.r.i, p.r.j, p.r.k],
-            })
-            .collect()),
+) -> anyhow::Result<(Vec<Pose>, bool)> {
+    Ok(match dataset::poses(dir, folder)? {
+        Some(poses) if poses.len() == len => (
+            poses
+                .iter()
+                .map(|p| Pose {
+                    translation: [p.t.x, p.t.y, p.t.z],
+                    rotation: [p.r.w, p.r.i, p.r.j, p.r.k],
+                })
+                .collect(),
+            true,
+        ),
         Some(poses) => anyhow::bail!(
             "{}: {} poses for {len} images in {folder}/",
             dir.display(),
             poses.len()
         ),
-        None => Ok((0..len)
-            .map(|i| Pose {
-                translation: [i as f64 * spacing, 0.0, 0.0],
-                ..Pose::default()
-            })
-            .collect()),
-    }
+        None => (
+            (0..len)
+                .map(|i| Pose {
+                    translation: [i as f64 * spacing, 0.0, 0.0],
+                    ..Pose::default()
+                })
+                .collect(),
+            false,
+        ),
+    })
 }
 
 /// Which visit of its place a query is: 1 + the earlier passes over it.
@@ -334,14 +341,19 @@ impl ReplayStream for LocalStream<'_> {
     }
 }
 
+/// The poses a replay stores its frames at: `(references, queries)`.
+pub type StreamPoses = (Vec<Pose>, Vec<Pose>);
+
 /// The keyframe poses of a data set: `(references, queries)` (for a loop,
 /// the same), the data set's own or the stand-in line, drifted by
-/// `options.pose_drift` and scaled by `options.pose_scale`.
+/// `options.pose_drift` and scaled by `options.pose_scale`; and whether
+/// they are the data set's own (the stand-in line is no odometry the drift
+/// envelope could judge: every revisit lies the whole path away).
 pub fn replay_poses(
     dir: &std::path::Path,
     dataset: &Dataset,
     options: &ReplayOptions,
-) -> anyhow::Result<(Vec<Pose>, Vec<Pose>)> {
+) -> anyhow::Result<(StreamPoses, bool)> {
     let spacing = line_spacing(dataset);
     let sent = |poses: Vec<Pose>, seed: u64| -> Vec<Pose> {
         super::pose_drift::drifted(&poses, options.pose_drift, seed)
@@ -356,34 +368,16 @@ pub fn replay_poses(
     let seed = options.seed ^ 0xD21F_7000;
     Ok(match dataset.kind {
         Kind::Loop => {
-            let p = sent(
-                poses_or_line(dir, "sequence", dataset.references.len(), spacing)?,
-                seed,
-            );
-            (p.clone(), p)
+            let (p, own) = poses_or_line(dir, "sequence", dataset.references.len(), spacing)?;
+            let p = sent(p, seed);
+            ((p.clone(), p), own)
         }
-        Kind::Pairs => (
-            sent(
-                poses_or_line(dir, "reference", dataset.references.len(), spacing)?,
-                seed,
-            ),
-            sent(
-                poses_or_line(dir, "query", dataset.queries.len(), spacing)?,
-                seed + 1,
-            ),
-        ),
+        Kind::Pairs => {
+            let (r, _) = poses_or_line(dir, "reference", dataset.references.len(), spacing)?;
+            let (q, own) = poses_or_line(dir, "query", dataset.queries.len(), spacing)?;
+            ((sent(r, seed), sent(q, seed + 1)), own)
+        }
     })
-}
-
-/// Whether the data set has poses of its own (else the replay stands its
-/// frames along a line, which no drift bound fits: every revisit lies the
-/// whole path away).
-pub fn has_poses(dir: &std::path::Path, dataset: &Dataset) -> anyhow::Result<bool> {
-    let folder = match dataset.kind {
-        Kind::Loop => "sequence",
-        Kind::Pairs => "query",
-    };
-    Ok(dataset::poses(dir, folder)?.is_some())
 }
 
 /// Streams the data set in-process once without verdicts, once with the
@@ -403,9 +397,9 @@ pub async fn replay(
         threshold: params.threshold(),
         max_candidates: params.max_candidates,
     };
-    let poses = replay_poses(dir, dataset, &options)?;
+    let (poses, own_poses) = replay_poses(dir, dataset, &options)?;
     let mut params = params.clone();
-    if !has_poses(dir, dataset)? {
+    if !own_poses {
         // The stand-in line is no odometry: the drift envelope is off.
         params.max_drift_ratio = drift::OFF_RATIO;
     }
@@ -446,7 +440,7 @@ pub(crate) async fn replay_pass<S: ReplayStream>(
     stream: &mut S,
     pass: &str,
     dataset: &Dataset,
-    (reference_poses, query_poses): &(Vec<Pose>, Vec<Pose>),
+    (reference_poses, query_poses): &StreamPoses,
     point: OperatingPoint,
     options: ReplayOptions,
     report: bool,

@@ -157,11 +157,11 @@ impl Index {
         let map = self.rows[row].map_key();
         let id = self.rows[row].key.keyframe_id;
         self.forget_spacing(&map);
-        let track = self.tracks.entry(map.clone()).or_default();
+        self.forget_path_from(&map, id);
+        let track = self.tracks.entry(map).or_default();
         track.insert(id, row);
         let prev = track.range(..id).next_back().map(|(_, &r)| r);
         let next = track.range(id + 1..).next().map(|(_, &r)| r);
-        self.forget_path_from(&map, id);
         self.set_prev(row, prev);
         if let Some(next) = next {
             self.set_prev(next, Some(row));
