@@ -108,6 +108,15 @@ bool PoseChanged(const float* a, const float* b)
     return false;
 }
 
+// A pose as the sent log writes it: tx ty tz qx qy qz qw (TUM order).
+std::string PoseText(const humem::Pose &p)
+{
+    std::ostringstream s;
+    s << std::setprecision(9) << p.translation.x << " " << p.translation.y << " " << p.translation.z << " "
+      << p.rotation.x << " " << p.rotation.y << " " << p.rotation.z << " " << p.rotation.w;
+    return s.str();
+}
+
 double MsSince(std::chrono::steady_clock::time_point t0)
 {
     return std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - t0).count();
@@ -123,7 +132,7 @@ HuMemSettings::HuMemSettings()
       queryTimeoutMs(5000), imageCacheFrames(64), topN(0), relocTopN(10), threshold(-1.f), relocThreshold(0.f),
       minFrameGap(-1), relocMinFrameGap(0), relocMaxAgeFrames(30), minMapKeyFrames(12),
       dbow2Fallback(false), poseUpdates(true), reportVerdicts(true), verifyBelowScore(0.5f), imageOrder("bgr"),
-      verbose(1)
+      verbose(1), sentLog()
 {
 }
 
@@ -170,6 +179,7 @@ bool HuMemSettings::Load(const std::string &strSettingsFile)
         imageOrder = "bgr";
     }
     ReadNumber(fs, "HuMem.Verbose", &verbose);
+    ReadString(fs, "HuMem.SentLog", &sentLog);
     if(imageCacheFrames < 1)
         imageCacheFrames = 1;
     if(queryDeadlineMs < 0)
@@ -246,6 +256,18 @@ VprKeyFrameDatabase::VprKeyFrameDatabase(const ORBVocabulary &voc, const HuMemSe
         m << ", a 4th coincidence below score " << mSettings.verifyBelowScore;
     m << ", images " << (mSettings.imageOrder == "gray" ? "sent grey" : "as the camera gives them (" + mSettings.imageOrder + " if colour)");
     Log(1, m.str());
+    if(!mSettings.sentLog.empty())
+    {
+        mSentLog.open(mSettings.sentLog.c_str(), std::ios::out | std::ios::trunc);
+        if(mSentLog)
+        {
+            mSentLog << "# HuMem sent log: insert KF FRAME MAP TIMESTAMP POSE | pose KF MAP POSE | erase KF | "
+                        "reset_map MAP | reset_session | query KF MAP; POSE = T_wc as tx ty tz qx qy qz qw\n";
+            Log(1, "sent log: " + mSettings.sentLog);
+        }
+        else
+            Log(0, "cannot open HuMem.SentLog " + mSettings.sentLog + ": nothing is recorded");
+    }
     if(mSettings.resetSessionOnStart)
         mClient->ResetSession();
 }
@@ -262,6 +284,12 @@ VprKeyFrameDatabase::Counters VprKeyFrameDatabase::GetCounters()
     Counters c = mCounters;
     c.writeFailures = gWriteFailures.load();
     return c;
+}
+
+void VprKeyFrameDatabase::RecordSentLocked(const std::string &line)
+{
+    if(mSentLog.is_open())
+        mSentLog << line << '\n' << std::flush;
 }
 
 void VprKeyFrameDatabase::Log(int level, const std::string &message)
@@ -392,6 +420,13 @@ bool VprKeyFrameDatabase::InsertLocked(KeyFrame* pKF, Entry &entry)
     entry.serverMapId = k.map_id;
     mLastInsertedInMap[static_cast<unsigned long>(k.map_id)] = pKF->mnId;
     ++mCounters.inserts;
+    if(mSentLog.is_open())
+    {
+        std::ostringstream line;
+        line << "insert " << k.keyframe_id << " " << k.frame_id << " " << k.map_id << " " << std::fixed
+             << std::setprecision(6) << k.timestamp << " " << PoseText(k.pose);
+        RecordSentLocked(line.str());
+    }
     return true;
 }
 
@@ -440,6 +475,7 @@ void VprKeyFrameDatabase::NewKeyFrame(KeyFrame* pKF)
         ApplyQueryOptions(q, false);
         entry.loopTicket = mClient->SubmitQuery(q);
         ++mCounters.loopQueries;
+        RecordSentLocked("query " + std::to_string(pKF->mnId) + " " + std::to_string(mapId));
         m << " + loop query (ticket " << entry.loopTicket << ")";
     }
     Log(2, m.str());
@@ -554,6 +590,9 @@ void VprKeyFrameDatabase::SyncMap(Map* pMap, const char* why, int logLevel)
     if(updates.empty())
         return;
     mClient->UpdatePoses(updates);
+    for(size_t i = 0; i < updates.size(); ++i)
+        RecordSentLocked("pose " + std::to_string(updates[i].keyframe_id) + " " + std::to_string(mapId) + " " +
+                         PoseText(updates[i].pose));
     ++mCounters.poseUpdates;
     mCounters.posesSent += updates.size();
     std::ostringstream m;
@@ -575,6 +614,7 @@ void VprKeyFrameDatabase::erase(KeyFrame* pKF)
     {
         mClient->Erase(std::vector<uint64_t>(1, static_cast<uint64_t>(pKF->mnId)));
         ++mCounters.erases;
+        RecordSentLocked("erase " + std::to_string(pKF->mnId));
         Log(2, "erase KF " + std::to_string(pKF->mnId));
     }
     mEntries.erase(it);
@@ -614,8 +654,11 @@ void VprKeyFrameDatabase::clearMap(Map* pMap)
     mRelocProposals.clear();
     mLastInsertedInMap.erase(mapId);
     mClient->ResetMap(mapId);
+    RecordSentLocked("reset_map " + std::to_string(mapId));
     if(!elsewhere.empty())
         mClient->Erase(elsewhere);
+    for(size_t i = 0; i < elsewhere.size(); ++i)
+        RecordSentLocked("erase " + std::to_string(elsewhere[i]));
     ++mCounters.mapResets;
     Log(1, "map " + std::to_string(mapId) + " reset: ResetMap sent (" + std::to_string(n) + " keyframes forgotten)");
 }
@@ -628,6 +671,7 @@ void VprKeyFrameDatabase::clear()
     // session on the server, then continue in a new one so that answers still
     // on their way (about the old ids) can never be mistaken for new keyframes.
     mClient->ResetSession();
+    RecordSentLocked("reset_session");
     ++mSessionResets;
     mSessionId = mSettings.sessionId + "-reset" + std::to_string(mSessionResets);
     mClient->SetSession(mSessionId);
@@ -702,6 +746,7 @@ humem::Ticket VprKeyFrameDatabase::LoopTicketFor(KeyFrame* pKF, Map* pMap)
         ticket = mClient->SubmitQuery(q);
         std::lock_guard<std::mutex> lock(mMutexHm);
         ++mCounters.loopQueries;
+        RecordSentLocked("query " + std::to_string(pKF->mnId) + " " + std::to_string(pMap->GetId()));
     }
     return ticket;
 }

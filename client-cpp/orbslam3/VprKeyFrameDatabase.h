@@ -48,6 +48,7 @@
 #include <chrono>
 #include <cstdint>
 #include <deque>
+#include <fstream>
 #include <map>
 #include <memory>
 #include <mutex>
@@ -93,6 +94,7 @@ struct HuMemSettings
     float verifyBelowScore;       // HuMem.VerifyBelowScore: candidates scored below need a 4th coincidence (0: off; default 0.5)
     std::string imageOrder;       // HuMem.ImageOrder: bgr (default; cv::imread, VideoCapture) | rgb | gray (send grey)
     int verbose;                  // HuMem.Verbose: 0 warnings, 1 info (default), 2 debug
+    std::string sentLog;          // HuMem.SentLog: file that records every pose, erase and loop query sent ("" = none)
 
     HuMemSettings();
     // Reads the keys from an ORB-SLAM3 settings file; false if it cannot be opened.
@@ -177,6 +179,8 @@ private:
     // from what HuMem holds; `why` goes into the log line.
     void SyncMap(Map* pMap, const char* why, int logLevel);
     void Log(int level, const std::string &message);
+    // Appends one line to the sent log (HuMem.SentLog), if any; mMutexHm held, so lines are in the order sent.
+    void RecordSentLocked(const std::string &line);
     std::string DescribeCandidate(const humem::Candidate &c) const;
     // Whether keyframe id's insert was queued (HuMem holds it, or will once the queue gets there); mMutexHm held.
     bool StoredLocked(unsigned long id, KeyFrame* pKF) const;
@@ -217,6 +221,7 @@ private:
     Counters mCounters;
     uint64_t mRefusedInRow;      // inserts refused since the last accepted one (warnings are thinned)
     uint64_t mFailedQueriesInRow;
+    std::ofstream mSentLog;      // HuMem.SentLog, open when set
 
     std::mutex mMutexLog;
 };

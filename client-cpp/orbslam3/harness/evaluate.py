@@ -18,9 +18,16 @@ Laps: the data sets carry no lap index, so the frames are split into
 times); a candidate counts in the lap of its query keyframe's frame.
 
 "True" uses the data set's ground-truth poses of the two keyframes' source
-frames: <= 5 m apart and <= 30 degrees between the camera orientations.
+frames: <= 5 m apart and <= 30 degrees between the camera orientations. A
+candidate 5-10 m away within 30 degrees is a near miss: the same street seen
+from a little farther on, which geometry may still match; near misses are
+counted apart and left out of the precision.
 
-  evaluate.py --dataset town-dev/loop --runs-dir RUNS [--laps 3] [--json out.json]
+Modes: `humem` and every `humem-...` mode (run.sh --mode-env) are HuMem runs;
+`dbow2` is ORB-SLAM3's own. Several --runs-dir folders (batches run at
+different times) make one table; a run's name then carries its batch.
+
+  evaluate.py --dataset town-dev/loop --runs-dir RUNS [RUNS2 ...] [--laps 3] [--json out.json]
 """
 import argparse
 import json
@@ -33,6 +40,8 @@ import numpy as np
 
 MAX_DIST_M = 5.0
 MAX_ANGLE_DEG = 30.0
+# Beyond the truth's radius but within this, (and within MAX_ANGLE_DEG): a near miss.
+NEAR_MISS_M = 10.0
 # Store check tolerances (ORB-SLAM3 map units; monocular maps have an
 # arbitrary scale of about the scene depth).
 STORE_TOL_T = 1e-3
@@ -84,6 +93,22 @@ def true_pair(gt, i, j):
     d = float(np.linalg.norm(gt[i][1] - gt[j][1]))
     a = rot_angle_deg(gt[i][2], gt[j][2])
     return d <= MAX_DIST_M and a <= MAX_ANGLE_DEG, d, a
+
+
+def near_miss(gt, i, j):
+    """Not a true place, but 5-10 m away within 30 degrees."""
+    ok, d, a = true_pair(gt, i, j)
+    return not ok and d <= NEAR_MISS_M and a <= MAX_ANGLE_DEG
+
+
+def is_humem(mode):
+    return mode == "humem" or mode.startswith("humem-")
+
+
+def precision(true, all_, near):
+    """true / (all - near misses), as text."""
+    judged = all_ - near
+    return "%.0f %%" % (100.0 * true / judged) if judged else "—"
 
 
 def umeyama_rmse(src, dst):
@@ -210,8 +235,8 @@ def evaluate_run(rd, gt, frames, laps=3):
         maps.setdefault(k["map"], []).append(k)
     res["maps"] = len(maps)
 
-    queries = cands = cands_true = 0
-    lap_cands, lap_true = [0] * laps, [0] * laps
+    queries = cands = cands_true = cands_near = 0
+    lap_cands, lap_true, lap_near = [0] * laps, [0] * laps, [0] * laps
     verdicts = {"loop": [0, 0], "merge": [0, 0], "relocalisation": [0, 0]}  # kind -> [all, accepted]
     accepted = {"loop": [], "merge": []}
     relocs = []
@@ -226,11 +251,15 @@ def evaluate_run(rd, gt, frames, laps=3):
                 lap = min(laps - 1, qi * laps // max(1, len(gt)))
                 for grp in (5, 7):
                     for t in filter(None, m.group(grp).split(",")):
-                        ok = true_pair(gt, qi, frames.index(float(t)))[0]
+                        ci = frames.index(float(t))
+                        ok = true_pair(gt, qi, ci)[0]
+                        near = near_miss(gt, qi, ci)
                         cands += 1
                         cands_true += ok
+                        cands_near += near
                         lap_cands[lap] += 1
                         lap_true[lap] += ok
+                        lap_near[lap] += near
                 continue
             m = VERDICT_RE.match(line) or RELOC_VERDICT_RE.match(line)
             if m:
@@ -256,7 +285,8 @@ def evaluate_run(rd, gt, frames, laps=3):
                 attempts += 1
                 attempt_cands += int(m.group(3))
     res.update({"queries": queries, "candidates": cands, "candidates_true": cands_true,
-                "lap_candidates": lap_cands, "lap_candidates_true": lap_true, "verdicts": verdicts,
+                "candidates_near": cands_near, "lap_candidates": lap_cands, "lap_candidates_true": lap_true,
+                "lap_candidates_near": lap_near, "verdicts": verdicts,
                 "loops": accepted["loop"],
                 "merges": accepted["merge"], "relocalisations": relocs,
                 "reloc_attempts": attempts, "reloc_attempt_candidates": attempt_cands,
@@ -288,7 +318,7 @@ def evaluate_run(rd, gt, frames, laps=3):
         res["ate_all_m"] = math.sqrt(sum(e ** 2 * len(maps[map_id]) for map_id, e in ate.items()) / n)
         res["ate_all_keyframes"] = n
 
-    if res["mode"] == "humem":
+    if is_humem(res["mode"]):
         r = store_check(os.path.join(rd, "store.jsonl"), kfs)
         res["store_ok"], res["store"] = r[0], r[1]
         if len(r) > 2:
@@ -301,8 +331,9 @@ def fmt_pairs(pairs):
 
 
 def fmt_laps(r):
-    """Candidate precision per lap: "true/all" of each lap, "—" for a lap without candidates."""
-    return ", ".join("%d/%d" % (t, n) if n else "—" for t, n in zip(r["lap_candidates_true"], r["lap_candidates"]))
+    """Candidate precision per lap: "true/judged" of each lap (near misses left out), "—" for a lap without any."""
+    return ", ".join("%d/%d" % (t, n - m) if n - m else "—"
+                     for t, n, m in zip(r["lap_candidates_true"], r["lap_candidates"], r["lap_candidates_near"]))
 
 
 def fmt_verdicts(r):
@@ -318,26 +349,41 @@ def fmt_verdicts(r):
 def main():
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--dataset", required=True)
-    ap.add_argument("--runs-dir", required=True)
+    ap.add_argument("--runs-dir", required=True, nargs="+",
+                    help="run folders of run.sh; several (batches) make one table")
     ap.add_argument("--laps", type=int, default=3,
                     help="passes over the route: frames split into this many equal parts by index (default 3)")
     ap.add_argument("--json", help="also write the results here (default RUNS/results.json)")
     a = ap.parse_args()
     gt = load_gt(a.dataset)
     frames = Frames(gt)
-    dirs = sorted(d for d in os.listdir(a.runs_dir) if os.path.exists(os.path.join(a.runs_dir, d, "run.txt")))
-    # humem-1, dbow2-1, ... -> group by mode, then run number
     laps = max(1, a.laps)
-    results = [evaluate_run(os.path.join(a.runs_dir, d), gt, frames, laps) for d in dirs]
-    results.sort(key=lambda r: (r["mode"] != "humem", int(r["run"]) if str(r["run"]).isdigit() else 0))
+    results = []
+    for batch, runs_dir in enumerate(a.runs_dir, 1):
+        dirs = sorted(d for d in os.listdir(runs_dir) if os.path.exists(os.path.join(runs_dir, d, "run.txt")))
+        for d in dirs:
+            r = evaluate_run(os.path.join(runs_dir, d), gt, frames, laps)
+            r["batch"] = batch
+            if len(a.runs_dir) > 1:
+                r["run"] = "%d.%s" % (batch, r["run"])
+            results.append(r)
 
-    print("| run | keyframes | frames lost | loop queries | candidates to geometric verification (true) "
+    def order(r):
+        mode = r["mode"]
+        rank = 0 if mode == "humem" else 1 if is_humem(mode) else 2
+        run = [int(x) if x.isdigit() else 0 for x in str(r["run"]).split(".")]
+        return (rank, mode, run)
+
+    results.sort(key=order)
+
+    print("| run | keyframes | frames lost | loop queries | candidates to geometric verification (true, near miss) "
           "| candidate precision per lap | verdicts (accepted) [reported to HuMem] | loops (true) "
           "| merges (true) | relocalisations (of attempts) | maps at end | KF ATE, Sim3 RMSE (largest map) "
           "| KF ATE (every map) | store = ORB-SLAM3 |")
     print("| --- | --- | --- | --- | --- | --- | --- | --- | --- | --- | --- | --- | --- | --- |")
     for r in results:
-        name = "%s %s" % ("HuMem" if r["mode"] == "humem" else "DBoW2" if r["mode"] == "dbow2" else r["mode"], r["run"])
+        name = "%s %s" % ("HuMem" if r["mode"] == "humem" else "DBoW2" if r["mode"] == "dbow2"
+                          else "HuMem " + r["mode"][len("humem-"):] if is_humem(r["mode"]) else r["mode"], r["run"])
         if "error" in r:
             print("| %s | %s |  |  |  |  |  |  |  |  |  |  |  |  |" % (name, r["error"]))
             continue
@@ -347,27 +393,38 @@ def main():
         ate = "%.2f m (%d KFs)" % (r["ate_m"], r["ate_map_keyframes"]) if "ate_m" in r else "—"
         ate_all = "%.2f m (%d KFs)" % (r["ate_all_m"], r["ate_all_keyframes"]) if "ate_all_m" in r else "—"
         reloc = "%d of %d" % (len(r["relocalisations"]), r["reloc_attempts"])
-        print("| %s | %d | %d | %s | %d (%d) | %s | %s | %s | %s | %s | %d | %s | %s | %s |" % (
-            name, r["keyframes"], r["frames_lost"], q, r["candidates"], r["candidates_true"], fmt_laps(r), fmt_verdicts(r),
+        print("| %s | %d | %d | %s | %d (%d, %d) | %s | %s | %s | %s | %s | %d | %s | %s | %s |" % (
+            name, r["keyframes"], r["frames_lost"], q, r["candidates"], r["candidates_true"], r["candidates_near"],
+            fmt_laps(r), fmt_verdicts(r),
             fmt_pairs(r["loops"]),
             fmt_pairs(r["merges"]), reloc, r["maps"], ate, ate_all, r.get("store", "—")))
     print()
-    print("Per mode, all runs: accepted loops and merges (false), candidates to geometric verification (true), "
-          "relocalisations, runs whose store matched, median KF ATE of the runs that ended in one map:")
-    for mode in sorted({r["mode"] for r in results if "error" not in r}):
+    print("Per mode, all runs (precision: true / candidates, near misses left out; per batch where there are "
+          "several; ATE: median keyframe ATE of the runs that ended in one map):")
+    print()
+    print("| mode | runs | accepted loops and merges (false) | candidates (true, near miss) | candidate precision "
+          "| per batch | relocalisations | runs ending in one map | median one-map KF ATE | median frames lost "
+          "| store = ORB-SLAM3 |")
+    print("| --- | --- | --- | --- | --- | --- | --- | --- | --- | --- | --- |")
+    modes = []
+    for r in results:
+        if "error" not in r and r["mode"] not in modes:
+            modes.append(r["mode"])
+    for mode in modes:
         rs = [r for r in results if r["mode"] == mode and "error" not in r]
         acc = [p for r in rs for p in r["loops"] + r["merges"]]
         one = sorted(r["ate_m"] for r in rs if r["maps"] == 1 and "ate_m" in r)
-        med = "%.2f m (%d runs)" % (float(np.median(one)), len(one)) if one else "no run"
-        stores = "; store matched in %d of %d" % (sum(bool(r.get("store_ok")) for r in rs), len(rs)) \
-            if mode == "humem" else ""
-        print("- %s, %d runs: %d accepted (%d false); %d candidates (%d true); %d relocalisations; "
-              "one-map ATE %s; median frames lost %g, median keyframes made %g%s"
-              % (mode, len(rs), len(acc), sum(not p["true"] for p in acc),
-                 sum(r["candidates"] for r in rs), sum(r["candidates_true"] for r in rs),
-                 sum(len(r["relocalisations"]) for r in rs), med,
-                 float(np.median([r["frames_lost"] for r in rs])),
-                 float(np.median([r["keyframes"] for r in rs])), stores))
+        med = "%.2f m (%.2f-%.2f)" % (float(np.median(one)), one[0], one[-1]) if one else "—"
+        stores = "%d of %d" % (sum(bool(r.get("store_ok")) for r in rs), len(rs)) if is_humem(mode) else "—"
+        total = [sum(r[k] for r in rs) for k in ("candidates_true", "candidates", "candidates_near")]
+        batches = sorted({r["batch"] for r in rs})
+        per_batch = ", ".join(precision(*[sum(r[k] for r in rs if r["batch"] == b)
+                                          for k in ("candidates_true", "candidates", "candidates_near")])
+                              for b in batches) if len(batches) > 1 else "—"
+        print("| %s | %d | %d (%d) | %d (%d, %d) | %s | %s | %d | %d | %s | %g | %s |"
+              % (mode, len(rs), len(acc), sum(not p["true"] for p in acc), total[1], total[0], total[2],
+                 precision(*total), per_batch, sum(len(r["relocalisations"]) for r in rs), len(one), med,
+                 float(np.median([r["frames_lost"] for r in rs])), stores))
     print()
     print("Accepted loops and merges (source frames; ground-truth distance and angle between them):")
     for r in results:

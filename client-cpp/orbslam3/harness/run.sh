@@ -29,7 +29,11 @@ usage: $0 --orbslam3 DIR --pangolin PREFIX --dataset DIR [options]
                       sequence_poses.txt (TUM, camera-to-world), e.g. town-dev/loop
   --humem BIN         humem binary (default: $repo/target/release/humem)
   --runs N            runs per mode (default 3)
-  --modes "M..."      humem and/or dbow2 (default "humem dbow2"); runs alternate between modes
+  --modes "M..."      humem, dbow2 and modes named by --mode-env (default "humem dbow2");
+                      runs alternate between modes
+  --mode-env NAME "K=V ..."   a further HuMem mode NAME (humem-...) whose server gets these
+                      variables on top of --server-env (repeatable), e.g.
+                      --mode-env humem-no-envelope "HUMEM_VPR__MAX_DRIFT_RATIO=1"
   --work DIR          build and run cache (default: \$HOME/.cache/humem-orbslam3)
   --fps F             frames fed per second, wall clock (default 10, the data's rate for
                       town-dev; lower it on a loaded machine: Local Mapping must keep up)
@@ -55,6 +59,7 @@ EOF
 orbslam3="" pangolin="" dataset="" humem="$repo/target/release/humem" runs=3 modes="humem dbow2"
 work="${HOME}/.cache/humem-orbslam3" fps=10 vocab="" vocab_images="" vocab_max=400 vocab_k=10 vocab_l=5
 server_env="" build_only=0 evaluate_only="" realtime=0 humem_settings=()
+declare -A mode_env=()
 while [ $# -gt 0 ]; do
     case "$1" in
         --orbslam3) orbslam3=$2; shift 2 ;;
@@ -71,6 +76,9 @@ while [ $# -gt 0 ]; do
         --vocab-k) vocab_k=$2; shift 2 ;;
         --vocab-l) vocab_l=$2; shift 2 ;;
         --server-env) server_env=$2; shift 2 ;;
+        --mode-env)
+            case "$2" in humem-*) ;; *) echo "run.sh: --mode-env names a mode humem-..., got: $2" >&2; exit 2 ;; esac
+            mode_env[$2]=$3; shift 3 ;;
         --build-only) build_only=1; shift ;;
         --realtime) realtime=1; shift ;;
         --humem-setting)
@@ -101,7 +109,14 @@ orbslam3=$(abspath "$orbslam3"); pangolin=$(abspath "$pangolin")
 if [ "$build_only" = 0 ]; then
     [ -n "$dataset" ] && [ -d "$dataset/sequence" ] || die "--dataset must name a folder with sequence/"
     dataset=$(abspath "$dataset")
-    case " $modes " in *" humem "*) [ -x "$humem" ] || die "humem binary not found: $humem (--humem)" ;; esac
+    for mode in $modes; do
+        case "$mode" in
+            humem|dbow2) ;;
+            humem-*) [ -n "${mode_env[$mode]+set}" ] || die "mode $mode has no --mode-env $mode \"K=V ...\"" ;;
+            *) die "unknown mode $mode (humem, dbow2, or humem-... with --mode-env)" ;;
+        esac
+    done
+    case " $modes " in *" humem"*) [ -x "$humem" ] || die "humem binary not found: $humem (--humem)" ;; esac
 fi
 if [ -n "$dataset" ]; then dataset=$(abspath "$dataset"); fi
 mkdir -p "$work"; work=$(abspath "$work")
@@ -253,7 +268,9 @@ timestamps=()
 [ -f "$dataset/sequence_poses.txt" ] && timestamps=(--timestamps "$dataset/sequence_poses.txt")
 {
     echo "dataset $dataset"; echo "orbslam3 $orbslam3"; echo "vocabulary $vocab"; echo "fps $fps"; echo "realtime $realtime"
-    echo "humem $humem"; echo "server_env $server_env"; echo "patch_sha1 $(sha1sum < "$plugin_dir/orbslam3-v1.0.patch" | cut -c1-12)"
+    echo "humem $humem"; echo "server_env $server_env"
+    for m in "${!mode_env[@]}"; do echo "mode_env $m ${mode_env[$m]}"; done
+    echo "patch_sha1 $(sha1sum < "$plugin_dir/orbslam3-v1.0.patch" | cut -c1-12)"
     echo "plugin_sha1 $(cat "$plugin_dir/VprKeyFrameDatabase.cc" "$plugin_dir/VprKeyFrameDatabase.h" | sha1sum | cut -c1-12)"
     echo "host $(hostname) $(nproc) cores"
 } >"$out/harness.txt"
@@ -279,11 +296,11 @@ for i in $(seq 1 "$runs"); do
         mkdir -p "$rd"
         cp "$out/camera.yaml" "$rd/settings.yaml"
         echo "mode $mode" >"$rd/run.txt"; echo "run $i" >>"$rd/run.txt"
-        if [ "$mode" = humem ]; then
+        if [ "$mode" != dbow2 ]; then
             port=$(free_port)
             metrics=$(free_port)
             # shellcheck disable=SC2086
-            (cd "$repo" && exec env $server_env HUMEM_METRICS__LISTEN="127.0.0.1:$metrics" \
+            (cd "$repo" && exec env $server_env ${mode_env[$mode]:-} HUMEM_METRICS__LISTEN="127.0.0.1:$metrics" \
                 "$humem" serve --listen "127.0.0.1:$port" --data-dir "$rd/store") >"$rd/server.log" 2>&1 &
             server_pid=$!
             for _ in $(seq 1 600); do
@@ -291,8 +308,8 @@ for i in $(seq 1 "$runs"); do
                 kill -0 "$server_pid" 2>/dev/null || { tail -20 "$rd/server.log" >&2; die "humem serve exited"; }
                 sleep 0.1
             done
-            printf 'HuMem.Enabled: 1\nHuMem.Address: "127.0.0.1:%s"\nHuMem.RobotId: "orbslam3"\nHuMem.DBoW2Fallback: 0\nHuMem.Verbose: 1\n' \
-                "$port" >>"$rd/settings.yaml"
+            printf 'HuMem.Enabled: 1\nHuMem.Address: "127.0.0.1:%s"\nHuMem.RobotId: "orbslam3"\nHuMem.DBoW2Fallback: 0\nHuMem.Verbose: 1\nHuMem.SentLog: "%s"\n' \
+                "$port" "$rd/sent.txt" >>"$rd/settings.yaml"
             for setting in "${humem_settings[@]}"; do
                 printf '%s\n' "$setting" >>"$rd/settings.yaml"
             done
@@ -308,7 +325,7 @@ for i in $(seq 1 "$runs"); do
         echo "driver_rc $rc" >>"$rd/run.txt"
         grep -F '[ORB-SLAM3 event]' "$rd/orbslam3.log" | sed 's/^.*\[ORB-SLAM3 event\] //' >"$rd/events.txt" || true
         [ "$rc" = 0 ] || { log "driver exited with $rc (see $rd/orbslam3.log)"; tail -5 "$rd/orbslam3.log" >&2; }
-        if [ "$mode" = humem ]; then
+        if [ "$mode" != dbow2 ]; then
             stop_server
             if "$humem" export --help >/dev/null 2>&1; then
                 (cd "$repo" && "$humem" export --data-dir "$rd/store") >"$rd/store.jsonl" 2>"$rd/export.log" \
