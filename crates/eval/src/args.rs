@@ -9,8 +9,8 @@ use std::path::PathBuf;
 use serde::Serialize;
 
 use crate::degrade::Degradation;
+use crate::replay_variant::Variant;
 use crate::source::SourceArgs;
-use crate::verdict_replay::Variant;
 use humem_core::vpr::params::Layers;
 
 /// Options of `humem eval`.
@@ -102,6 +102,13 @@ pub struct EvalArgs {
     /// repeatable.
     #[arg(long)]
     pub replay_variant: Vec<Variant>,
+    /// With --replay-verdicts: replay the keyframes, poses, pose updates,
+    /// erasures and loop queries that the ORB-SLAM3 plugin sent, as its
+    /// sent log (`HuMem.SentLog`) recorded them, instead of every frame at
+    /// the data set's poses; a loop data set with a TUM pose file (its
+    /// timestamps match keyframes to images); in-process only.
+    #[arg(long, value_name = "SENT_LOG")]
+    pub replay_trajectory: Option<PathBuf>,
 }
 
 impl EvalArgs {

@@ -58,6 +58,18 @@ pub fn poses(dir: &Path, folder: &str) -> anyhow::Result<Option<Vec<truth::Pose>
     Ok(None)
 }
 
+/// Timestamps of an image folder's frames, if a TUM pose file (whose
+/// first column they are) lies beside it.
+pub fn timestamps(dir: &Path, folder: &str) -> anyhow::Result<Option<Vec<f64>>> {
+    let tum = dir.join(format!("{folder}_poses.txt"));
+    if !tum.is_file() {
+        return Ok(None);
+    }
+    let text = std::fs::read_to_string(&tum)?;
+    let poses = truth::parse_tum(&text).with_context(|| format!("parsing {}", tum.display()))?;
+    Ok(Some(poses.into_iter().map(|(t, _)| t).collect()))
+}
+
 impl Dataset {
     /// Reads the data set in `dir`. `rule` is used when the ground truth is
     /// computed from poses; `min_gap` overrides the file's frame gap.

@@ -29,8 +29,11 @@
 //!
 //! `humem eval`, bottom up:
 //! - [`replay_rows`]: the replay's rows and their tables;
+//! - [`replay_variant`]: a replay pass's further settings (`--replay-variant`);
 //! - [`verdict_replay`]: the stream replayed with the ground truth as
 //!   geometric verification, without and with verdicts (`--replay-verdicts`);
+//! - [`sent_log`]: what the ORB-SLAM3 plugin sent, as a replay's steps
+//!   (`--replay-trajectory`);
 //! - [`args`]: its options and the layer configurations they name;
 //! - [`report`]: its numbers per method and condition, and their tables;
 //! - [`protocol`]: the queries a run asks and what each method answered;
@@ -72,10 +75,12 @@ mod progress;
 pub mod protocol;
 pub mod remote;
 pub mod replay_rows;
+pub mod replay_variant;
 pub mod report;
 pub mod restart_bench;
 pub mod run;
 pub mod scan_bench;
+pub mod sent_log;
 pub mod source;
 pub mod text_recall;
 pub mod truth;

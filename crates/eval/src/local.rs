@@ -18,13 +18,14 @@ use anyhow::Context;
 
 use crate::annotations::{self, Catalog};
 use crate::args::EvalArgs;
-use crate::dataset::Dataset;
+use crate::dataset::{self, Dataset};
 use crate::degrade::{self, Degradation};
 use crate::images::{image_bytes, image_input};
 use crate::keyframes::stored;
 use crate::progress::progress;
 use crate::protocol::{Samples, Selection};
 use crate::replay_rows::ReplayRow;
+use crate::sent_log;
 use crate::truth::Kind;
 use crate::verdict_replay::{self, ReplayOptions};
 use humem_core::index::Index;
@@ -130,18 +131,46 @@ impl LocalDatabase {
             }
         };
         let features = |p: &[Perceived]| p.iter().map(|p| p.features.clone()).collect::<Vec<_>>();
+        let options = ReplayOptions {
+            wrong_rejections: args.wrong_rejections,
+            seed: args.replay_seed,
+            pose_scale: args.replay_pose_scale,
+            pose_drift: args.replay_pose_drift,
+        };
+        if let Some(log) = &args.replay_trajectory {
+            let dir = args.dataset_dir();
+            if dataset.kind != Kind::Loop {
+                anyhow::bail!(
+                    "--replay-trajectory replays a loop data set (sequence/), not {}",
+                    dataset.name
+                );
+            }
+            let Some(timestamps) = dataset::timestamps(dir, "sequence")? else {
+                anyhow::bail!(
+                    "--replay-trajectory matches keyframes to images by timestamp: {} has no sequence_poses.txt",
+                    dir.display()
+                );
+            };
+            let steps = sent_log::read(log, &timestamps)?;
+            let references = features(&self.references);
+            return verdict_replay::replay_steps(
+                &config.vpr,
+                dataset,
+                &references,
+                &references,
+                &steps,
+                options,
+                &args.replay_variant,
+            )
+            .await;
+        }
         verdict_replay::replay(
             &config.vpr,
             args.dataset_dir(),
             dataset,
             &features(&self.references),
             &features(queries),
-            ReplayOptions {
-                wrong_rejections: args.wrong_rejections,
-                seed: args.replay_seed,
-                pose_scale: args.replay_pose_scale,
-                pose_drift: args.replay_pose_drift,
-            },
+            options,
             &args.replay_variant,
         )
         .await

@@ -33,7 +33,7 @@ use super::progress::progress;
 use super::protocol::{Samples, Selection};
 use super::replay_rows::ReplayRow;
 use super::truth::Kind;
-use super::verdict_replay::{self, Asked, ReplayOptions};
+use super::verdict_replay::{self, Asked, Ranked, ReplayOptions};
 use humem_core::vpr::params::Layers;
 use humem_server::proto;
 use humem_server::proto::place_recognition_client::PlaceRecognitionClient;
@@ -313,6 +313,7 @@ impl Remote {
                 dataset.name
             );
         }
+        let steps = verdict_replay::dataset_steps(dataset, &poses);
         let mut rows = Vec::new();
         for (n, (pass, report)) in [("without verdicts", false), ("with verdicts", true)]
             .into_iter()
@@ -333,7 +334,7 @@ impl Remote {
                     &mut stream,
                     pass,
                     dataset,
-                    &poses,
+                    &steps,
                     point,
                     options,
                     report,
@@ -360,29 +361,48 @@ impl RemoteStream<'_> {
 }
 
 impl verdict_replay::ReplayStream for RemoteStream<'_> {
+    /// Stores the image as keyframe `id`; its frame id and timestamp stay
+    /// the image's index, as in the rest of the run.
     async fn store(
         &mut self,
         robot: &str,
-        index: usize,
+        id: u64,
+        image: usize,
+        map: u64,
         pose: humem_core::keyframe::Pose,
     ) -> anyhow::Result<()> {
         let path = if robot == verdict_replay::REFERENCE_ROBOT {
-            &self.dataset.references[index]
+            &self.dataset.references[image]
         } else {
-            &self.dataset.queries[index]
+            &self.dataset.queries[image]
         };
         let mut kf = keyframe(
             &self.robot(robot),
             &self.remote.session,
-            index,
+            image,
             image_bytes(path, None)?,
         );
+        kf.keyframe_id = Some(id);
+        kf.map_id = Some(map);
         kf.pose = Some(humem_server::api::convert::pose(&pose));
         self.remote.insert(kf).await?;
         Ok(())
     }
 
-    async fn ask(&mut self, q: usize, pairs: bool, gap: usize) -> anyhow::Result<Asked> {
+    async fn move_to(
+        &mut self,
+        id: u64,
+        _: u64,
+        _: humem_core::keyframe::Pose,
+    ) -> anyhow::Result<()> {
+        bail!("moving keyframe {id}: a replay over a running service streams the data set's own poses, which never move")
+    }
+
+    async fn erase(&mut self, id: u64) -> anyhow::Result<()> {
+        bail!("erasing keyframe {id}: a replay over a running service streams the data set's own keyframes, which are never erased")
+    }
+
+    async fn ask(&mut self, q: u64, pairs: bool, gap: usize) -> anyhow::Result<Asked> {
         let (scope, robot_ids) = if pairs {
             (
                 proto::Scope::Listed,
@@ -398,7 +418,7 @@ impl verdict_replay::ReplayStream for RemoteStream<'_> {
             .query(proto::QueryRequest {
                 robot_id: robot.clone(),
                 session_id: self.remote.session.clone(),
-                keyframe_id: Some(q as u64),
+                keyframe_id: Some(q),
                 scope: scope as i32,
                 robot_ids,
                 min_frame_gap: Some(gap as u64),
@@ -421,7 +441,15 @@ impl verdict_replay::ReplayStream for RemoteStream<'_> {
             ranked: reply
                 .candidates
                 .iter()
-                .map(|c| (c.keyframe_id, c.score))
+                .map(|c| Ranked {
+                    id: c.keyframe_id,
+                    score: c.score,
+                    drift_ratio: c
+                        .evidence
+                        .as_ref()
+                        .and_then(|e| e.drift.as_ref())
+                        .map(|d| d.ratio),
+                })
                 .collect(),
             threshold: reply.operating_threshold,
         })
@@ -429,7 +457,7 @@ impl verdict_replay::ReplayStream for RemoteStream<'_> {
 
     async fn report(
         &mut self,
-        q: usize,
+        q: u64,
         robot: &str,
         candidate: u64,
         accepted: bool,
@@ -441,7 +469,7 @@ impl verdict_replay::ReplayStream for RemoteStream<'_> {
             .report_verification(proto::ReportVerificationRequest {
                 robot_id: self.robot(verdict_replay::ROBOT),
                 session_id: session.clone(),
-                keyframe_id: Some(q as u64),
+                keyframe_id: Some(q),
                 candidate: Some(proto::KeyframeRef {
                     robot_id: self.robot(robot),
                     session_id: session,

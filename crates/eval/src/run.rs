@@ -130,6 +130,11 @@ pub async fn run(config: Config, mut args: EvalArgs) -> anyhow::Result<()> {
         if !(args.replay_pose_drift.is_finite() && args.replay_pose_drift >= 0.0) {
             anyhow::bail!("--replay-pose-drift must be a finite number >= 0");
         }
+        if args.replay_trajectory.is_some()
+            && (args.replay_pose_drift != 0.0 || args.replay_pose_scale != 1.0)
+        {
+            anyhow::bail!("--replay-trajectory replays the poses SLAM sent: --replay-pose-drift and --replay-pose-scale do not apply");
+        }
         let rows = match &mut backend {
             Backend::Local(local) => {
                 let (perception, database) = &**local;
@@ -140,6 +145,9 @@ pub async fn run(config: Config, mut args: EvalArgs) -> anyhow::Result<()> {
             Backend::Remote(remote) => {
                 if !args.replay_variant.is_empty() {
                     anyhow::bail!("--replay-variant runs in-process only: a running service has one configuration");
+                }
+                if args.replay_trajectory.is_some() {
+                    anyhow::bail!("--replay-trajectory runs in-process only: leave out --server");
                 }
                 remote
                     .replay_verdicts(

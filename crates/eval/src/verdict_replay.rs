@@ -36,7 +36,7 @@
 //! 2 = one earlier pass over it, and so on (the earlier passes are the runs
 //! of the query's true places separated by more than half the frame gap).
 
-use std::collections::BTreeMap;
+use std::collections::{BTreeMap, HashMap};
 
 use anyhow::Context;
 
@@ -46,7 +46,7 @@ use super::precision::{self, OperatingPoint, ScoredQuery};
 use super::replay_rows::{FalseAlarm, ReplayRow, TrueAndFalse, SPREAD_OF_TOP};
 use super::truth::Kind;
 use humem_core::index::Index;
-use humem_core::keyframe::{Features, Pose, SemanticKeyframe, SessionKey};
+use humem_core::keyframe::{Features, KeyframeKey, Pose, SemanticKeyframe, SessionKey};
 use humem_core::synthetic::Rng;
 use humem_core::verdict::{Verdict, VerificationKind};
 use humem_core::vpr::drift;
@@ -54,6 +54,8 @@ use humem_core::vpr::eligibility::Scope;
 use humem_core::vpr::feedback::squared_distance;
 use humem_core::vpr::feedback::VerdictParams;
 use humem_core::vpr::params::{Layers, VprParams};
+
+use super::replay_variant::Variant;
 use humem_server::pipeline::query;
 use humem_server::pipeline::request::{QueryKind, QuerySpec};
 
@@ -69,81 +71,6 @@ pub struct ReplayOptions {
     /// Drift of the poses sent, as a share of the path
     /// ([`pose_drift`](super::pose_drift)); 0: the data set's poses.
     pub pose_drift: f64,
-}
-
-/// A further pass with other verdict settings (`--replay-variant
-/// NAME:key=value,…`, keys of `[vpr.verdicts]`), to compare settings on
-/// one's own data in one run.
-#[derive(Debug, Clone, PartialEq)]
-pub struct Variant {
-    /// The pass's name in the table.
-    pub name: String,
-    /// `key = value` pairs applied over the configured settings.
-    pub settings: Vec<(String, String)>,
-}
-
-impl std::str::FromStr for Variant {
-    type Err = String;
-
-    fn from_str(s: &str) -> Result<Variant, String> {
-        let (name, rest) = s
-            .split_once(':')
-            .ok_or_else(|| format!("{s:?}: expected NAME:key=value,…"))?;
-        let settings = rest
-            .split(',')
-            .filter(|kv| !kv.trim().is_empty())
-            .map(|kv| {
-                kv.split_once('=')
-                    .map(|(k, v)| (k.trim().to_string(), v.trim().to_string()))
-                    .ok_or_else(|| format!("{kv:?}: expected key=value"))
-            })
-            .collect::<Result<_, _>>()?;
-        Ok(Variant {
-            name: name.trim().to_string(),
-            settings,
-        })
-    }
-}
-
-impl Variant {
-    /// `base` with this variant's settings (keys of `[vpr.verdicts]` and
-    /// `max_drift_ratio`), checked.
-    pub fn apply(&self, base: &VprParams) -> anyhow::Result<VprParams> {
-        let mut vpr = base.clone();
-        let p = &mut vpr.verdicts;
-        for (key, value) in &self.settings {
-            let bad = || {
-                anyhow::anyhow!(
-                    "--replay-variant {}: {key} = {value:?} does not parse",
-                    self.name
-                )
-            };
-            match key.as_str() {
-                "enabled" => p.enabled = value.parse().map_err(|_| bad())?,
-                "radius_steps" => p.radius_steps = value.parse().map_err(|_| bad())?,
-                "radius_m" => p.radius_m = Some(value.parse().map_err(|_| bad())?),
-                "max_penalty" => p.max_penalty = value.parse().map_err(|_| bad())?,
-                "support_gain" => p.support_gain = value.parse().map_err(|_| bad())?,
-                "place_graph" => p.place_graph = value.parse().map_err(|_| bad())?,
-                "half_life_hours" => p.half_life_hours = value.parse().map_err(|_| bad())?,
-                "adapt_threshold" => p.adapt_threshold = value.parse().map_err(|_| bad())?,
-                "target_precision" => p.target_precision = value.parse().map_err(|_| bad())?,
-                "geometry_miss_rate" => p.geometry_miss_rate = value.parse().map_err(|_| bad())?,
-                "min_verdicts" => p.min_verdicts = value.parse().map_err(|_| bad())?,
-                "max_threshold_raise" => {
-                    p.max_threshold_raise = value.parse().map_err(|_| bad())?
-                }
-                "max_drift_ratio" => vpr.max_drift_ratio = value.parse().map_err(|_| bad())?,
-                other => anyhow::bail!(
-                    "--replay-variant {}: no setting {other:?} (max_drift_ratio, or of [vpr.verdicts]: enabled, radius_steps, radius_m, max_penalty, support_gain, place_graph, half_life_hours, adapt_threshold, target_precision, geometry_miss_rate, min_verdicts, max_threshold_raise)",
-                    self.name
-                ),
-            }
-        }
-        vpr.validate()
-            .map_err(|e| anyhow::anyhow!("--replay-variant {}: {e}", self.name))?;
-        Ok(vpr)
-    }
 }
 
 /// A keyframe of the stream: as the evaluation stores one, at `pose`.
@@ -224,23 +151,94 @@ pub(crate) const ROBOT: &str = "drive";
 /// Robot of a pairs set's references.
 pub(crate) const REFERENCE_ROBOT: &str = "reference";
 
-/// Where a pass stores frames, asks and reports: the in-process index
+/// One step of a replay: what a SLAM client sends, in the order it sends
+/// it. A data set's own stream stores every frame as keyframe `image` of
+/// map 0 and asks about it ([`dataset_steps`]); a recorded trajectory
+/// (`trajectory_replay`) also moves and erases keyframes, in maps of its
+/// own.
+#[derive(Debug, Clone, PartialEq)]
+pub(crate) enum Step {
+    /// Stores image `image` of `robot` ([`ROBOT`] or [`REFERENCE_ROBOT`])
+    /// as keyframe `id` of map `map` of its one session, at `pose`.
+    Store {
+        robot: &'static str,
+        id: u64,
+        image: usize,
+        map: u64,
+        pose: Pose,
+    },
+    /// Moves keyframe `id` of the drive to `pose` in map `map` (a pose
+    /// update after a loop correction or a merge).
+    Move { id: u64, map: u64, pose: Pose },
+    /// Erases keyframe `id` of the drive.
+    Erase { id: u64 },
+    /// Asks about stored keyframe `id` of the drive.
+    Ask { id: u64 },
+}
+
+/// A data set streamed as the plugin streams it: for pairs, the
+/// references first, then each query frame stored and asked about; for a
+/// loop, each frame stored and (once `gap` frames are stored) asked about.
+/// Keyframe ids are image indices, all in map 0.
+pub(crate) fn dataset_steps(
+    dataset: &Dataset,
+    (reference_poses, query_poses): &StreamPoses,
+) -> Vec<Step> {
+    let pairs = dataset.kind == Kind::Pairs;
+    let mut steps = Vec::new();
+    if pairs {
+        for (i, &pose) in reference_poses.iter().enumerate() {
+            steps.push(Step::Store {
+                robot: REFERENCE_ROBOT,
+                id: i as u64,
+                image: i,
+                map: 0,
+                pose,
+            });
+        }
+    }
+    for (q, &pose) in query_poses.iter().enumerate() {
+        steps.push(Step::Store {
+            robot: ROBOT,
+            id: q as u64,
+            image: q,
+            map: 0,
+            pose,
+        });
+        if pairs || q >= dataset.min_frame_gap {
+            steps.push(Step::Ask { id: q as u64 });
+        }
+    }
+    steps
+}
+
+/// Where a pass stores keyframes, asks and reports: the in-process index
 /// ([`LocalStream`]) or a running service (`remote`). A pass starts on an
 /// empty stream.
 pub(crate) trait ReplayStream {
-    /// Stores frame `index` of `robot` ([`ROBOT`] or [`REFERENCE_ROBOT`]),
-    /// in map 0 of its one session, at `pose`.
-    async fn store(&mut self, robot: &str, index: usize, pose: Pose) -> anyhow::Result<()>;
-    /// Asks about stored frame `q` of the drive, with no threshold: the
-    /// ranked `(keyframe id, score)` of the candidate robot's keyframes,
-    /// and the store's operating threshold at that moment (what a query
-    /// naming none would have been answered at).
-    async fn ask(&mut self, q: usize, pairs: bool, gap: usize) -> anyhow::Result<Asked>;
+    /// Stores image `image` of `robot` as keyframe `id` of map `map`, at `pose`.
+    async fn store(
+        &mut self,
+        robot: &str,
+        id: u64,
+        image: usize,
+        map: u64,
+        pose: Pose,
+    ) -> anyhow::Result<()>;
+    /// Moves stored keyframe `id` of the drive to `pose` in map `map`.
+    async fn move_to(&mut self, id: u64, map: u64, pose: Pose) -> anyhow::Result<()>;
+    /// Erases stored keyframe `id` of the drive.
+    async fn erase(&mut self, id: u64) -> anyhow::Result<()>;
+    /// Asks about stored keyframe `q` of the drive, with no threshold: the
+    /// ranked candidates of the candidate robot's keyframes, and the
+    /// store's operating threshold at that moment (what a query naming
+    /// none would have been answered at).
+    async fn ask(&mut self, q: u64, pairs: bool, gap: usize) -> anyhow::Result<Asked>;
     /// Reports the verdict on candidate `candidate` of `robot` for query
-    /// frame `q`.
+    /// keyframe `q`.
     async fn report(
         &mut self,
-        q: usize,
+        q: u64,
         robot: &str,
         candidate: u64,
         accepted: bool,
@@ -248,11 +246,23 @@ pub(crate) trait ReplayStream {
     ) -> anyhow::Result<()>;
 }
 
+/// One candidate of a replay's answer.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub(crate) struct Ranked {
+    /// The candidate's keyframe id.
+    pub id: u64,
+    /// Its score.
+    pub score: f32,
+    /// The drift envelope's `r` (distance over path), for a candidate of
+    /// the query's own map.
+    pub drift_ratio: Option<f64>,
+}
+
 /// One query's answer in a replay.
 #[derive(Debug, Clone, Default)]
 pub(crate) struct Asked {
-    /// `(keyframe id, score)`, best first.
-    pub ranked: Vec<(u64, f32)>,
+    /// The candidates, best first.
+    pub ranked: Vec<Ranked>,
     /// The store's operating threshold when it was asked.
     pub threshold: f32,
 }
@@ -265,18 +275,49 @@ pub(crate) struct LocalStream<'a> {
     queries: &'a [Features],
 }
 
+impl LocalStream<'_> {
+    fn key(robot: &str, id: u64) -> KeyframeKey {
+        KeyframeKey {
+            robot_id: robot.into(),
+            session_id: String::new(),
+            keyframe_id: id,
+        }
+    }
+}
+
 impl ReplayStream for LocalStream<'_> {
-    async fn store(&mut self, robot: &str, index: usize, pose: Pose) -> anyhow::Result<()> {
+    async fn store(
+        &mut self,
+        robot: &str,
+        id: u64,
+        image: usize,
+        map: u64,
+        pose: Pose,
+    ) -> anyhow::Result<()> {
         let features = if robot == REFERENCE_ROBOT {
-            &self.references[index]
+            &self.references[image]
         } else {
-            &self.queries[index]
+            &self.queries[image]
         };
-        self.index.upsert(keyframe(robot, index, features, pose));
+        let mut stored = keyframe(robot, image, features, pose);
+        stored.key.keyframe_id = id;
+        stored.map_id = map;
+        self.index.upsert(stored);
         Ok(())
     }
 
-    async fn ask(&mut self, q: usize, pairs: bool, gap: usize) -> anyhow::Result<Asked> {
+    async fn move_to(&mut self, id: u64, map: u64, pose: Pose) -> anyhow::Result<()> {
+        self.index
+            .update_pose(&Self::key(ROBOT, id), pose, Some(map));
+        Ok(())
+    }
+
+    async fn erase(&mut self, id: u64) -> anyhow::Result<()> {
+        self.index.remove(&Self::key(ROBOT, id));
+        Ok(())
+    }
+
+    async fn ask(&mut self, q: u64, pairs: bool, gap: usize) -> anyhow::Result<Asked> {
         let spec = QuerySpec {
             session: SessionKey {
                 robot_id: ROBOT.into(),
@@ -284,7 +325,7 @@ impl ReplayStream for LocalStream<'_> {
             },
             map_id: None,
             frame_id: None,
-            keyframe_id: Some(q as u64),
+            keyframe_id: Some(q),
             observation: None,
             predecessor_ids: Vec::new(),
             scope: if pairs {
@@ -309,7 +350,11 @@ impl ReplayStream for LocalStream<'_> {
             ranked: outcome
                 .candidates
                 .iter()
-                .map(|c| (c.key.keyframe_id, c.score))
+                .map(|c| Ranked {
+                    id: c.key.keyframe_id,
+                    score: c.score,
+                    drift_ratio: c.drift.map(|d| d.ratio()),
+                })
                 .collect(),
             threshold: outcome.operating_point.threshold,
         })
@@ -317,19 +362,15 @@ impl ReplayStream for LocalStream<'_> {
 
     async fn report(
         &mut self,
-        q: usize,
+        q: u64,
         robot: &str,
         candidate: u64,
         accepted: bool,
         score: f32,
     ) -> anyhow::Result<()> {
-        let session = |robot: &str| SessionKey {
-            robot_id: robot.into(),
-            session_id: String::new(),
-        };
         self.index.record_verdict(Verdict {
-            query: session(ROBOT).keyframe(q as u64),
-            candidate: session(robot).keyframe(candidate),
+            query: Self::key(ROBOT, q),
+            candidate: Self::key(robot, candidate),
             kind: VerificationKind::Loop,
             accepted,
             relative: None,
@@ -393,16 +434,34 @@ pub async fn replay(
     options: ReplayOptions,
     variants: &[Variant],
 ) -> anyhow::Result<Vec<ReplayRow>> {
-    let point = OperatingPoint {
-        threshold: params.threshold(),
-        max_candidates: params.max_candidates,
-    };
     let (poses, own_poses) = replay_poses(dir, dataset, &options)?;
     let mut params = params.clone();
     if !own_poses {
         // The stand-in line is no odometry: the drift envelope is off.
         params.max_drift_ratio = drift::OFF_RATIO;
     }
+    let steps = dataset_steps(dataset, &poses);
+    replay_steps(
+        &params, dataset, references, queries, &steps, options, variants,
+    )
+    .await
+}
+
+/// Runs `steps` in-process once without verdicts, once with the configured
+/// verdict settings and once per variant; the table's rows.
+pub(crate) async fn replay_steps(
+    params: &VprParams,
+    dataset: &Dataset,
+    references: &[Features],
+    queries: &[Features],
+    steps: &[Step],
+    options: ReplayOptions,
+    variants: &[Variant],
+) -> anyhow::Result<Vec<ReplayRow>> {
+    let point = OperatingPoint {
+        threshold: params.threshold(),
+        max_candidates: params.max_candidates,
+    };
     let with_verdicts = |enabled| VprParams {
         verdicts: VerdictParams {
             enabled,
@@ -415,7 +474,7 @@ pub async fn replay(
         ("with verdicts".to_string(), with_verdicts(true)),
     ];
     for v in variants {
-        passes.push((v.name.clone(), v.apply(&params)?));
+        passes.push((v.name.clone(), v.apply(params)?));
     }
     let mut rows = Vec::new();
     for (pass, params) in passes {
@@ -427,20 +486,154 @@ pub async fn replay(
             references,
             queries,
         };
-        rows.extend(
-            replay_pass(&mut stream, &pass, dataset, &poses, point, options, report).await?,
-        );
+        rows.extend(replay_pass(&mut stream, &pass, dataset, steps, point, options, report).await?);
     }
     Ok(rows)
 }
 
-/// One pass over the data set on `stream`: store, ask, and (if `report`)
-/// report each candidate sent to verification; the pass's rows.
+/// A keyframe a pass holds: its image, map and pose as last sent.
+#[derive(Debug, Clone, Copy)]
+struct Held {
+    image: usize,
+    map: u64,
+    pose: Pose,
+}
+
+/// The keyframes one robot holds in a pass, by id and by image.
+#[derive(Debug, Default)]
+struct Holdings {
+    by_id: HashMap<u64, Held>,
+    by_image: HashMap<usize, u64>,
+}
+
+impl Holdings {
+    fn insert(&mut self, id: u64, held: Held) {
+        if let Some(old) = self.by_id.insert(id, held) {
+            self.by_image.remove(&old.image);
+        }
+        self.by_image.insert(held.image, id);
+    }
+
+    fn remove(&mut self, id: u64) {
+        if let Some(old) = self.by_id.remove(&id) {
+            self.by_image.remove(&old.image);
+        }
+    }
+}
+
+/// A query judged by the ground truth of its image, against the keyframes
+/// the pass holds where it may look.
+struct Judged<'a> {
+    /// The keyframes it may be answered with (and others, of other maps).
+    pool: &'a Holdings,
+    /// The query as held.
+    query: Held,
+    /// Images of its true places that the pool holds where it may look.
+    matches: Vec<usize>,
+}
+
+impl<'a> Judged<'a> {
+    fn new(dataset: &Dataset, pool: &'a Holdings, q: u64, query: Held, pairs: bool) -> Self {
+        let matches = dataset
+            .matches
+            .get(&query.image)
+            .into_iter()
+            .flatten()
+            .copied()
+            .filter(|m| {
+                pool.by_image
+                    .get(m)
+                    .is_some_and(|id| *id != q && (pairs || pool.by_id[id].map == query.map))
+            })
+            .collect();
+        Judged {
+            pool,
+            query,
+            matches,
+        }
+    }
+
+    fn is_true(&self, id: u64) -> bool {
+        self.pool
+            .by_id
+            .get(&id)
+            .is_some_and(|h| self.matches.contains(&h.image))
+    }
+
+    /// Counts the answer `ranked` into `group`; the candidates sent to
+    /// verification: `(id, true place, score)`.
+    fn account(
+        &self,
+        group: &mut Group,
+        ranked: &[Ranked],
+        threshold: f32,
+        point: OperatingPoint,
+    ) -> Vec<(u64, bool, f32)> {
+        let held_of = |id: u64| self.pool.by_id.get(&id);
+        let has_match = !self.matches.is_empty();
+        if let Some(top) = ranked.first().filter(|r| r.score > threshold) {
+            let positions: Vec<[f64; 3]> = ranked
+                .iter()
+                .take(SPREAD_OF_TOP)
+                .filter_map(|r| held_of(r.id).map(|h| h.pose.translation))
+                .collect();
+            group.spreads.push(self.is_true(top.id), spread(&positions));
+            if !has_match {
+                let candidate = held_of(top.id);
+                group.false_alarms.push(FalseAlarm {
+                    query: self.query.image,
+                    candidate: candidate.map_or(top.id, |h| h.image as u64),
+                    score: top.score,
+                    threshold,
+                    distance: candidate.map_or(f64::NAN, |h| {
+                        squared_distance(self.query.pose.translation, h.pose.translation).sqrt()
+                    }),
+                });
+            }
+        }
+        group.scored.push(ScoredQuery {
+            ranked: ranked
+                .iter()
+                .map(|r| (r.score, self.is_true(r.id)))
+                .collect(),
+            has_match,
+            threshold: Some(threshold),
+        });
+        if has_match {
+            group.answers.push((
+                ranked
+                    .iter()
+                    .map(|r| held_of(r.id).map_or(usize::MAX, |h| h.image))
+                    .collect(),
+                self.matches.clone(),
+            ));
+        }
+        let mut sent = Vec::new();
+        for r in ranked
+            .iter()
+            .filter(|r| r.score > threshold)
+            .take(point.max_candidates)
+        {
+            let truth = self.is_true(r.id);
+            if let Some(ratio) = r.drift_ratio {
+                group.ratios.push(truth, ratio);
+            }
+            sent.push((r.id, truth, r.score));
+        }
+        sent
+    }
+}
+
+/// One pass of `steps` on `stream`: store, move, erase, ask, and (if
+/// `report`) report each candidate sent to verification; the pass's rows.
+/// A query's true places are those of its image's ground truth that the
+/// stream holds where the query may look: the references of a pairs set,
+/// or the keyframes of the query's own map.
 pub(crate) async fn replay_pass<S: ReplayStream>(
     stream: &mut S,
     pass: &str,
     dataset: &Dataset,
-    (reference_poses, query_poses): &StreamPoses,
+    steps: &[Step],
     point: OperatingPoint,
     options: ReplayOptions,
     report: bool,
@@ -448,94 +641,78 @@ pub(crate) async fn replay_pass<S: ReplayStream>(
     let mut rng = Rng::new(options.seed);
     let pairs = dataset.kind == Kind::Pairs;
     let (candidate_robot, gap) = if pairs {
-        for (i, pose) in reference_poses.iter().enumerate() {
-            stream.store(REFERENCE_ROBOT, i, *pose).await?;
-        }
         (REFERENCE_ROBOT, 0)
     } else {
         (ROBOT, dataset.min_frame_gap)
     };
+    let mut drive = Holdings::default();
+    let mut references = Holdings::default();
     // Per visit: the scored queries, their rankings and wrong rejections.
     let mut groups: BTreeMap<usize, Group> = BTreeMap::new();
-    let along = path_along(query_poses);
-    let bar = super::progress::progress(query_poses.len(), pass);
-    for (q, pose) in query_poses.iter().enumerate() {
-        bar.inc(1);
-        stream.store(ROBOT, q, *pose).await?;
-        if !pairs && q < gap {
-            continue; // nothing is eligible yet
-        }
-        let asked = stream.ask(q, pairs, gap).await?;
-        // Without verdicts, the configured threshold: a store's adapted
-        // one is the verdicts' doing.
-        let threshold = if report {
-            asked.threshold
-        } else {
-            point.threshold
-        };
-        let ranked = asked.ranked;
-        let matches = dataset.matches.get(&q);
-        let is_true = |id: u64| matches.is_some_and(|m| m.contains(&(id as usize)));
-        let has_match = matches.is_some_and(|m| !m.is_empty());
-        let group = groups.entry(visit_of(matches, gap)).or_default();
-        if let Some(&(candidate, score)) = ranked.first().filter(|&&(_, s)| s > threshold) {
-            let top: Vec<[f64; 3]> = ranked
-                .iter()
-                .take(SPREAD_OF_TOP)
-                .map(|&(id, _)| reference_poses[id as usize].translation)
-                .collect();
-            group.spreads.push(is_true(candidate), spread(&top));
-            if !has_match {
-                let at = |poses: &[Pose], i: u64| poses[i as usize].translation;
-                group.false_alarms.push(FalseAlarm {
-                    query: q,
-                    candidate,
-                    score,
-                    threshold,
-                    distance: squared_distance(
-                        at(query_poses, q as u64),
-                        at(reference_poses, candidate),
-                    )
-                    .sqrt(),
-                });
+    let asks = steps
+        .iter()
+        .filter(|s| matches!(s, Step::Ask { .. }))
+        .count();
+    let bar = super::progress::progress(asks, pass);
+    for step in steps {
+        match *step {
+            Step::Store {
+                robot,
+                id,
+                image,
+                map,
+                pose,
+            } => {
+                stream.store(robot, id, image, map, pose).await?;
+                let held = Held { image, map, pose };
+                if robot == REFERENCE_ROBOT {
+                    references.insert(id, held);
+                } else {
+                    drive.insert(id, held);
+                }
             }
-        }
-        group.scored.push(ScoredQuery {
-            ranked: ranked.iter().map(|&(id, s)| (s, is_true(id))).collect(),
-            has_match,
-            threshold: Some(threshold),
-        });
-        if let Some(m) = matches.filter(|m| !m.is_empty()) {
-            group.answers.push((
-                ranked.iter().map(|&(id, _)| id as usize).collect(),
-                m.clone(),
-            ));
-        }
-        let sent = ranked
-            .iter()
-            .filter(|&&(_, s)| s > threshold)
-            .take(point.max_candidates);
-        for &(id, score) in sent {
-            let truth = is_true(id);
-            if !pairs {
-                let distance = squared_distance(
-                    query_poses[q].translation,
-                    query_poses[id as usize].translation,
-                )
-                .sqrt();
-                let path = (along[q] - along[id as usize]).abs();
-                let r = if path > 0.0 { distance / path } else { 0.0 };
-                group.ratios.push(truth, r);
+            Step::Move { id, map, pose } => {
+                stream.move_to(id, map, pose).await?;
+                if let Some(held) = drive.by_id.get_mut(&id) {
+                    held.map = map;
+                    held.pose = pose;
+                }
             }
-            // Drawn for every candidate sent, in every pass alike.
-            let missed = (rng.next() as f64 / u64::MAX as f64) < options.wrong_rejections;
-            if truth && missed {
-                group.wrong_rejections += 1;
+            Step::Erase { id } => {
+                stream.erase(id).await?;
+                drive.remove(id);
             }
-            if report {
-                stream
-                    .report(q, candidate_robot, id, truth && !missed, score)
-                    .await?;
+            Step::Ask { id: q } => {
+                bar.inc(1);
+                let Some(&query) = drive.by_id.get(&q) else {
+                    continue; // erased before it was asked about
+                };
+                let asked = stream.ask(q, pairs, gap).await?;
+                // Without verdicts, the configured threshold: a store's
+                // adapted one is the verdicts' doing.
+                let threshold = if report {
+                    asked.threshold
+                } else {
+                    point.threshold
+                };
+                let pool = if pairs { &references } else { &drive };
+                let judged = Judged::new(dataset, pool, q, query, pairs);
+                let group = groups
+                    .entry(visit_of(Some(&judged.matches), gap))
+                    .or_default();
+                let sent = judged.account(group, &asked.ranked, threshold, point);
+                for (id, truth, score) in sent {
+                    // Drawn for every candidate sent, in every pass alike.
+                    let missed = (rng.next() as f64 / u64::MAX as f64) < options.wrong_rejections;
+                    if truth && missed {
+                        group.wrong_rejections += 1;
+                    }
+                    if report {
+                        stream
+                            .report(q, candidate_robot, id, truth && !missed, score)
+                            .await?;
+                    }
+                }
             }
         }
     }
@@ -583,20 +760,6 @@ fn spread(positions: &[[f64; 3]]) -> f64 {
     (square / n).sqrt()
 }
 
-/// The path driven up to each pose: the running sum of the distances
-/// between consecutive poses.
-fn path_along(poses: &[Pose]) -> Vec<f64> {
-    let mut walked = 0.0;
-    let mut along = Vec::with_capacity(poses.len());
-    for (i, pose) in poses.iter().enumerate() {
-        if i > 0 {
-            walked += squared_distance(poses[i - 1].translation, pose.translation).sqrt();
-        }
-        along.push(walked);
-    }
-    along
-}
-
 impl Group {
     fn row(&self, pass: &str, visit: &str, point: OperatingPoint) -> ReplayRow {
         let p = precision::precision(&self.scored, point);
@@ -629,27 +792,52 @@ mod tests {
     /// what it was told: the accounting of [`replay_pass`] on its own.
     #[derive(Default)]
     struct Scripted {
-        answers: BTreeMap<usize, Vec<(u64, f32)>>,
-        stored: Vec<(String, usize)>,
-        reported: Vec<(usize, u64, bool)>,
+        answers: BTreeMap<u64, Vec<(u64, f32)>>,
+        stored: Vec<(String, u64)>,
+        reported: Vec<(u64, u64, bool)>,
     }
 
     impl ReplayStream for Scripted {
-        async fn store(&mut self, robot: &str, index: usize, _: Pose) -> anyhow::Result<()> {
-            self.stored.push((robot.into(), index));
+        async fn store(
+            &mut self,
+            robot: &str,
+            id: u64,
+            _: usize,
+            _: u64,
+            _: Pose,
+        ) -> anyhow::Result<()> {
+            self.stored.push((robot.into(), id));
             Ok(())
         }
 
-        async fn ask(&mut self, q: usize, _: bool, _: usize) -> anyhow::Result<Asked> {
+        async fn move_to(&mut self, _: u64, _: u64, _: Pose) -> anyhow::Result<()> {
+            Ok(())
+        }
+
+        async fn erase(&mut self, _: u64) -> anyhow::Result<()> {
+            Ok(())
+        }
+
+        /// The scripted answer; on a line every candidate lies the whole
+        /// path away (r = 1).
+        async fn ask(&mut self, q: u64, _: bool, _: usize) -> anyhow::Result<Asked> {
+            let ranked = self.answers.get(&q).cloned().unwrap_or_default();
             Ok(Asked {
-                ranked: self.answers.get(&q).cloned().unwrap_or_default(),
+                ranked: ranked
+                    .into_iter()
+                    .map(|(id, score)| Ranked {
+                        id,
+                        score,
+                        drift_ratio: Some(1.0),
+                    })
+                    .collect(),
                 threshold: 0.36,
             })
         }
 
         async fn report(
             &mut self,
-            q: usize,
+            q: u64,
             _: &str,
             candidate: u64,
             accepted: bool,
@@ -700,11 +888,12 @@ mod tests {
             pose_scale: 1.0,
             pose_drift: 0.0,
         };
+        let steps = dataset_steps(&dataset, &(poses.clone(), poses));
         let rows = replay_pass(
             &mut stream,
             "with verdicts",
             &dataset,
-            &(poses.clone(), poses),
+            &steps,
             point,
             options,
             true,
@@ -758,19 +947,6 @@ mod tests {
             printed.contains("| with verdicts | 1 | 1.000 / 1.000 / 1.000 / 1.000 | 3 |"),
             "{printed}"
         );
-    }
-
-    /// A variant sets the drift envelope's bound beside the verdicts'
-    /// settings, and a bad value names itself.
-    #[test]
-    fn a_variant_sets_the_drift_bound_and_verdict_settings() {
-        let v: Variant = "open:max_drift_ratio=1,max_penalty=0.5".parse().unwrap();
-        let p = v.apply(&VprParams::default()).unwrap();
-        assert_eq!(p.max_drift_ratio, 1.0);
-        assert_eq!(p.verdicts.max_penalty, 0.5);
-        let bad: Variant = "bad:max_drift_ratio=0".parse().unwrap();
-        let e = bad.apply(&VprParams::default()).unwrap_err().to_string();
-        assert!(e.contains("max_drift_ratio"), "{e}");
     }
 
     #[test]
