@@ -158,6 +158,7 @@ Candidate FromProto(const v1::Candidate& c) {
     d.path = e.drift().path();
     d.ratio = e.drift().ratio();
     d.allowance = e.drift().allowance();
+    d.penalty = e.drift().penalty();
     ev.drift = d;
   }
   for (const v1::ObjectMatch& m : e.object_matches()) {

@@ -316,12 +316,14 @@ TEST(Convert, EvidenceCarriesTheDriftEnvelope) {
   d->set_path(213.0);
   d->set_ratio(3.0 / 213.0);
   d->set_allowance(25.8);
+  d->set_penalty(0.05f);
   const Candidate out = FromProto(c);
   ASSERT_TRUE(out.evidence.drift.has_value());
   EXPECT_DOUBLE_EQ(out.evidence.drift.value().distance, 3.0);
   EXPECT_DOUBLE_EQ(out.evidence.drift.value().path, 213.0);
   EXPECT_DOUBLE_EQ(out.evidence.drift.value().ratio, 3.0 / 213.0);
   EXPECT_DOUBLE_EQ(out.evidence.drift.value().allowance, 25.8);
+  EXPECT_FLOAT_EQ(out.evidence.drift.value().penalty, 0.05f);
 }
 
 }  // namespace

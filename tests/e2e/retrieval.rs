@@ -490,12 +490,12 @@ async fn a_loop_query_leaves_out_views_of_its_map_turned_away_from_it() {
 /// A drive along x (keyframe k at x = k, 1 to 32) back to its start:
 /// keyframe 300, at x = 1, looks like keyframe 1 (the place's first
 /// visit, 0 away after a path of 62) and like keyframe 20 (a look-alike 19
-/// away after a path of 43: beyond 0.1 · 43 + 3, the radius being three
-/// keyframe spacings of 1). The look-alike is left out and the first
-/// visit carries the envelope's numbers; with `vpr.max_drift_ratio = 1`
-/// both are proposed.
+/// away after a path of 43: past twice 0.05 · 43 + 3, the radius being
+/// three keyframe spacings of 1). The look-alike loses the envelope's
+/// whole penalty (0.1) and the first visit nothing, each with the
+/// envelope's numbers; with `vpr.max_drift_ratio = 1` neither loses any.
 #[tokio::test(flavor = "multi_thread")]
-async fn a_loop_query_leaves_out_a_look_alike_farther_than_the_maps_drift() {
+async fn a_loop_query_lowers_a_look_alike_farther_than_the_maps_drift() {
     let mut world = World::new(40, 5);
     let place = world.view(0, 0.0);
     let mut keyframes: Vec<proto::Keyframe> = other_places(&mut world)
@@ -514,25 +514,40 @@ async fn a_loop_query_leaves_out_a_look_alike_farther_than_the_maps_drift() {
     back.pose = Some(scenes::pose(1.0));
     keyframes.push(back);
 
-    for (env, left_out) in [
-        (&[][..], true),
-        (&["HUMEM_VPR__MAX_DRIFT_RATIO=1"][..], false),
+    let mut look_alike_scores = Vec::new();
+    for (env, bound) in [
+        (&[][..], 0.05),
+        (&["HUMEM_VPR__MAX_DRIFT_RATIO=1"][..], 1.0),
     ] {
         let reply = whole_ranking_of_300(env, &keyframes, proto::Scope::SameMap).await;
         let ids: Vec<u64> = reply.candidates.iter().map(|c| c.keyframe_id).collect();
-        assert_eq!(ids.contains(&20), !left_out, "{env:?}: {ids:?}");
-        let first_visit = reply.candidates.iter().find(|c| c.keyframe_id == 1);
-        let drift = first_visit
-            .and_then(|c| c.evidence.as_ref())
-            .and_then(|e| e.drift)
-            .unwrap_or_else(|| panic!("{env:?}: the first visit, with the envelope: {ids:?}"));
-        assert_eq!(drift.distance, 0.0);
-        assert!((drift.path - 62.0).abs() < 1e-9, "{drift:?}");
-        assert_eq!(drift.ratio, 0.0);
-        let bound = if left_out { 0.1 } else { 1.0 };
+        let drift_of = |id: u64| {
+            let candidate = reply.candidates.iter().find(|c| c.keyframe_id == id);
+            let drift = candidate
+                .and_then(|c| c.evidence.as_ref())
+                .and_then(|e| e.drift)
+                .unwrap_or_else(|| panic!("{env:?}: keyframe {id}, with the envelope: {ids:?}"));
+            (candidate.unwrap().score, drift)
+        };
+        let (_, first_visit) = drift_of(1);
+        assert_eq!(first_visit.distance, 0.0);
+        assert!((first_visit.path - 62.0).abs() < 1e-9, "{first_visit:?}");
+        assert_eq!(first_visit.ratio, 0.0);
         assert!(
-            (drift.allowance - (bound * 62.0 + 3.0)).abs() < 1e-9,
-            "{drift:?}"
+            (first_visit.allowance - (bound * 62.0 + 3.0)).abs() < 1e-9,
+            "{first_visit:?}"
         );
+        assert_eq!(first_visit.penalty, 0.0);
+        let (score, look) = drift_of(20);
+        assert!((look.distance - 19.0).abs() < 1e-9, "{look:?}");
+        assert!((look.path - 43.0).abs() < 1e-9, "{look:?}");
+        let expected = if bound < 1.0 { 0.1 } else { 0.0 };
+        assert!((look.penalty - expected).abs() < 1e-6, "{env:?}: {look:?}");
+        look_alike_scores.push(score);
     }
+    // Lowered by the penalty, and by nothing else.
+    assert!(
+        (look_alike_scores[1] - look_alike_scores[0] - 0.1).abs() < 1e-5,
+        "{look_alike_scores:?}"
+    );
 }

@@ -90,8 +90,8 @@ async fn verdicts_act_the_same_in_a_map_of_monocular_scale() {
 }
 
 /// The keyframes of [`look_alike_rejected_twice`] stand on a line that
-/// never comes back, where the drift envelope would leave the look-alike
-/// out by its position alone (250 away along a path of 250): it is off,
+/// never comes back, where the drift envelope would lower the look-alike
+/// by its position alone (250 away along a path of 250): it is off,
 /// so that the verdicts do the work.
 const LINE_WITHOUT_ENVELOPE: &[&str] = &["HUMEM_VPR__MAX_DRIFT_RATIO=1"];
 

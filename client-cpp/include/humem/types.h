@@ -232,11 +232,12 @@ struct TextMatch {
 };
 
 // Where a candidate of the query's own map lies against the map's drift
-// (map units): proposed only when distance <= allowance (see the proto's
-// DriftEnvelope).
+// (map units): beyond allowance its score lost penalty, up to 0.1 at twice
+// the allowed ratio (see the proto's DriftEnvelope).
 struct DriftEnvelope {
   double distance, path, ratio, allowance;
-  DriftEnvelope() : distance(0), path(0), ratio(0), allowance(0) {}
+  float penalty;
+  DriftEnvelope() : distance(0), path(0), ratio(0), allowance(0), penalty(0) {}
 };
 
 // Why a candidate was proposed (see the proto's Evidence).
@@ -259,8 +260,8 @@ struct Evidence {
   uint32_t verdict_rejections;
   uint32_t verdict_acceptances;
   // Set for a candidate of the query's own map when the query is a stored
-  // keyframe: its distance from the query, the path between them, r and the
-  // allowance.
+  // keyframe: its distance from the query, the path between them, r, the
+  // allowance and the penalty.
   Optional<DriftEnvelope> drift;
   Evidence()
       : scene_score(0), descriptor_cosine(0), temporal_depth(0), object_score(0), text_score(0),

@@ -353,7 +353,7 @@ def main():
                     help="run folders of run.sh; several (batches) make one table")
     ap.add_argument("--laps", type=int, default=3,
                     help="passes over the route: frames split into this many equal parts by index (default 3)")
-    ap.add_argument("--json", help="also write the results here (default RUNS/results.json)")
+    ap.add_argument("--json", help="also write the results here (default: results.json in the first RUNS)")
     a = ap.parse_args()
     gt = load_gt(a.dataset)
     frames = Frames(gt)
@@ -441,7 +441,7 @@ def main():
                                  ", ".join(str(i) for i in r["relocalisations"]) or "none"))
         if r.get("store_detail") and not r.get("store_ok"):
             print("- %s %s: store check %s" % (r["mode"], r["run"], json.dumps(r["store_detail"])))
-    out = a.json or os.path.join(a.runs_dir, "results.json")
+    out = a.json or os.path.join(a.runs_dir[0], "results.json")
     with open(out, "w") as f:
         json.dump(results, f, indent=1, default=lambda o: o.tolist() if hasattr(o, "tolist") else str(o))
     return 0

@@ -526,12 +526,14 @@ class MissingObject:
 @dataclass(frozen=True)
 class DriftEnvelope:
     """Where a candidate of the query's own map lies against the map's
-    drift (map units): proposed only when ``distance <= allowance``."""
+    drift (map units): beyond ``allowance`` its score lost ``penalty``
+    (up to 0.1, at twice the allowed ratio)."""
 
     distance: float
     path: float
     ratio: float
     allowance: float
+    penalty: float
 
 
 @dataclass(frozen=True)

@@ -85,8 +85,9 @@ class MirrorTest(unittest.TestCase):
         message.evidence.drift.path = 213.0
         message.evidence.drift.ratio = 3.0 / 213.0
         message.evidence.drift.allowance = 25.8
+        message.evidence.drift.penalty = 0.0
         drift = _convert.candidate_from_proto(message).evidence.drift
-        self.assertEqual(drift, hc.DriftEnvelope(distance=3.0, path=213.0, ratio=3.0 / 213.0, allowance=25.8))
+        self.assertEqual(drift, hc.DriftEnvelope(distance=3.0, path=213.0, ratio=3.0 / 213.0, allowance=25.8, penalty=0.0))
 
     def test_a_full_query_request_round_trips(self):
         q = hc.Query(frame_id=7, keyframe_id=3, map_id=2, features=hc.Features(

@@ -4,9 +4,9 @@
 //! The scan and the paper's layers rank the eligible rows
 //! ([`rank_timed`]); the rules on top of them that need the index itself
 //! come next, in this order: views of the query's own map turned away from
-//! it are left out ([`viewpoint`]), and so are its candidates lying
-//! farther away than the map's drift explains
-//! ([`drift`](crate::vpr::drift)), SLAM's verdicts change the scores
+//! it are left out ([`viewpoint`]), its candidates lying farther away
+//! than the map's drift explains lose score ([`drift`](crate::vpr::drift)),
+//! SLAM's verdicts change the scores
 //! ([`feedback`]), and the store's operating point gives the threshold
 //! unless the query names one; then the candidates are selected.
 //!
@@ -99,7 +99,7 @@ pub fn answer(index: &Index, params: &VprParams, query: &IndexQuery) -> Answer {
     } = rank_timed(params, query.layers, &query.observation, index, &eligible);
     let clock = Instant::now();
     leave_out_turned_away(index, params, query.stored_row, &mut ranked);
-    leave_out_beyond_drift(index, params, query.stored_row, &mut ranked);
+    lower_beyond_drift(index, params, query.stored_row, &mut ranked);
     let now = unix_now();
     apply_verdicts(index, params, query.stored_row, &mut ranked, now);
     let operating_point = index.operating_point(params, now);
@@ -139,15 +139,16 @@ pub fn leave_out_turned_away(
 
 /// Measures every candidate of the query's own map against the drift
 /// envelope ([`drift`](crate::vpr::drift)), records what it found in the
-/// candidate's evidence, and leaves out those lying farther from the
-/// query than `vpr.max_drift_ratio` of the path between them plus the
-/// map's same-place radius allows. A query without a stored keyframe
-/// keeps them all, unmeasured; so do candidates of other maps.
-pub fn leave_out_beyond_drift(
+/// candidate's evidence, lowers the scores of those lying farther from
+/// the query than `vpr.max_drift_ratio` of the path between them plus the
+/// map's same-place radius allows, and puts them back in order. A query
+/// without a stored keyframe keeps them all, unmeasured; so do candidates
+/// of other maps.
+pub fn lower_beyond_drift(
     index: &Index,
     params: &VprParams,
     stored_row: Option<usize>,
-    ranked: &mut Vec<RankedCandidate>,
+    ranked: &mut [RankedCandidate],
 ) {
     let Some(query_row) = stored_row else {
         return;
@@ -159,14 +160,21 @@ pub fn leave_out_beyond_drift(
     }
     let query = index.meta(query_row);
     let radius = params.verdicts.radius(index.map_spacing(&query.map_key()));
+    let mut lowered = false;
     for (candidate, path) in ranked.iter_mut().zip(paths) {
         candidate.drift = path.map(|path| {
             let at = index.meta(candidate.row).pose.translation;
             let distance = squared_distance(query.pose.translation, at).sqrt();
             DriftEvidence::new(distance, path, radius, params.max_drift_ratio)
         });
+        if let Some(drift) = candidate.drift.filter(|d| d.penalty > 0.0) {
+            candidate.score -= drift.penalty;
+            lowered = true;
+        }
     }
-    ranked.retain(|r| !r.drift.is_some_and(|d| d.beyond()));
+    if lowered {
+        sort_ranked(ranked);
+    }
 }
 
 /// Changes the ranked candidates' scores by SLAM's stored verdicts
@@ -495,38 +503,73 @@ mod tests {
         ids
     }
 
+    /// The score of keyframe `id` in `answer`, which must hold it.
+    fn score_of(answer: &Answer, index: &Index, id: u64) -> f32 {
+        answer
+            .candidates
+            .iter()
+            .find(|c| index.meta(c.row).key.keyframe_id == id)
+            .unwrap_or_else(|| panic!("keyframe {id} is ranked"))
+            .score
+    }
+
+    fn envelope_off() -> VprParams {
+        VprParams {
+            max_drift_ratio: crate::vpr::drift::OFF_RATIO,
+            ..VprParams::default()
+        }
+    }
+
     /// A drive 105 m east in 1.5 m steps and 105 m back west to its
     /// start, then a query 40 m north of it: keyframe 0 lies 40 m away
-    /// after 250 m of path and is left out; a query 3 m north of the start
-    /// instead is a revisit and keeps it, with the envelope's numbers in
-    /// its evidence.
+    /// after 250 m of path and loses the whole penalty, which takes it
+    /// below a threshold it passed with the envelope off; a query 3 m
+    /// north of the start instead is a revisit and keeps its score, with
+    /// the envelope's numbers in its evidence.
     #[test]
-    fn a_look_alike_40_m_away_after_210_m_is_left_out_and_a_revisit_kept() {
-        let away = out_and_back([0.0, 40.0, 0.0]);
-        let index = map_along(&away);
+    fn a_look_alike_40_m_away_after_210_m_is_lowered_out_and_a_revisit_kept() {
+        use crate::vpr::drift::PENALTY;
+        let away = map_along(&out_and_back([0.0, 40.0, 0.0]));
         let params = VprParams::default();
-        let answer = loop_answer(&index, &params, 100);
+        let on = loop_answer(&away, &params, 100);
+        let off = loop_answer(&away, &envelope_off(), 100);
         // Spacing 1.5 m, radius 3 spacings = 4.5 m; keyframe 0 lies 40 m
-        // away after 210 m + 40 m: allowance 0.1 · 250 + 4.5 = 29.5 m.
-        assert!(
-            !ids(&answer, &index).contains(&0),
-            "{:?}",
-            ids(&answer, &index)
-        );
-        // Back at the start instead (3 m off): kept, with its evidence.
-        let index = map_along(&out_and_back([0.0, 3.0, 0.0]));
-        let drift = drift_of(&loop_answer(&index, &params, 100), &index, 0);
+        // away after 210 m + 40 m: allowance 0.05 · 250 + 4.5 = 17 m, and
+        // 40 m is past twice the ratio (29.5 m): the whole penalty.
+        let look_alike = drift_of(&on, &away, 0);
+        assert!((look_alike.allowance - 17.0).abs() < 1e-9);
+        assert_eq!(look_alike.penalty, PENALTY);
+        let (lowered, unlowered) = (score_of(&on, &away, 0), score_of(&off, &away, 0));
+        assert!((unlowered - lowered - PENALTY).abs() < 1e-6);
+        // At a threshold it passed by less than the penalty it is out
+        // (raw scores: every keyframe looks alike here, so each one's
+        // calibrated score is its null median, 0).
+        let raw = |p: VprParams| VprParams {
+            calibration: crate::vpr::params::Calibration::Raw,
+            ..p
+        };
+        let unlowered = score_of(&loop_answer(&away, &raw(envelope_off()), 100), &away, 0);
+        assert!(unlowered > PENALTY, "{unlowered}");
+        let mut query = query_of(&away, last_row(&away), true);
+        query.context.scope = Scope::SameMap;
+        query.context.min_frame_gap = 100;
+        query.layers = Layers::SCAL;
+        let current = away.keyframe(last_row(&away)).features;
+        query.observation.history = vec![&current];
+        query.threshold = Some(unlowered - PENALTY / 2.0);
+        assert!(!ids(&answer(&away, &raw(params.clone()), &query), &away).contains(&0));
+        assert!(ids(&answer(&away, &raw(envelope_off()), &query), &away).contains(&0));
+        // Back at the start instead (3 m off): untouched, with evidence.
+        let back = map_along(&out_and_back([0.0, 3.0, 0.0]));
+        let on = loop_answer(&back, &params, 100);
+        let drift = drift_of(&on, &back, 0);
         assert!((drift.distance - 3.0).abs() < 1e-9);
         assert!((drift.path - 213.0).abs() < 1e-9, "{}", drift.path);
         assert!((drift.ratio() - 3.0 / 213.0).abs() < 1e-12);
-        assert!((drift.allowance - (21.3 + 4.5)).abs() < 1e-9);
-        // Off: the look-alike comes back.
-        let off = VprParams {
-            max_drift_ratio: crate::vpr::drift::OFF_RATIO,
-            ..VprParams::default()
-        };
-        let index = map_along(&away);
-        assert!(ids(&loop_answer(&index, &off, 100), &index).contains(&0));
+        assert!((drift.allowance - (10.65 + 4.5)).abs() < 1e-9);
+        assert_eq!(drift.penalty, 0.0);
+        let off = loop_answer(&back, &envelope_off(), 100);
+        assert_eq!(score_of(&on, &back, 0), score_of(&off, &back, 0));
     }
 
     /// The same drive in units 37 times smaller gives the same answers.
@@ -539,28 +582,37 @@ mod tests {
         let a = loop_answer(&metric, &params, 100);
         let b = loop_answer(&small, &params, 100);
         assert_eq!(ids(&a, &metric), ids(&b, &small));
-        // Keyframe 10 (15 m east): 19.2 m away after 207 m, within
-        // 25.2 m; keyframe 19 (28.5 m east): 30.9 m after 193.5 m, beyond
-        // 23.85 m.
-        assert!(ids(&a, &metric).contains(&10));
-        assert!(!ids(&a, &metric).contains(&19));
+        // Keyframe 0: 12 m after 222 m, within 15.6 m. Keyframe 10 (15 m
+        // east): 19.21 m after 207 m, 4.36 m past 14.85 m of a 10.35 m
+        // ramp. Keyframe 19 (28.5 m east): 30.92 m after 193.5 m, past
+        // twice the ratio (23.85 m).
+        assert_eq!(drift_of(&a, &metric, 0).penalty, 0.0);
+        let p10 = drift_of(&a, &metric, 10).penalty;
+        let expected = 0.1 * ((15f64.hypot(12.0) - 14.85) / 10.35) as f32;
+        assert!((p10 - expected).abs() < 1e-6, "{p10} against {expected}");
+        assert_eq!(drift_of(&a, &metric, 19).penalty, 0.1);
         for (x, y) in a.candidates.iter().zip(&b.candidates) {
+            assert_eq!(x.score, y.score);
             let (x, y) = (x.drift.unwrap(), y.drift.unwrap());
             assert!((x.ratio() - y.ratio()).abs() < 1e-9);
+            assert!((x.penalty - y.penalty).abs() < 1e-6);
         }
     }
 
     /// A loop closure's pose update moves the query's keyframe back onto
-    /// its first visit: the candidate left out before is proposed after.
+    /// its first visit: the candidate lowered before keeps its score after.
     #[test]
     fn a_pose_update_that_closes_a_loop_changes_the_decision() {
         let mut index = map_along(&out_and_back([0.0, 40.0, 0.0]));
         let params = VprParams::default();
-        assert!(!ids(&loop_answer(&index, &params, 100), &index).contains(&0));
+        let before = loop_answer(&index, &params, 100);
+        assert_eq!(drift_of(&before, &index, 0).penalty, 0.1);
         let mut corrected = index.keyframe(last_row(&index));
         corrected.pose.translation = [0.0, 1.0, 0.0];
         index.upsert(corrected);
-        assert!(ids(&loop_answer(&index, &params, 100), &index).contains(&0));
+        let after = loop_answer(&index, &params, 100);
+        assert_eq!(drift_of(&after, &index, 0).penalty, 0.0);
+        assert!(score_of(&after, &index, 0) > score_of(&before, &index, 0));
     }
 
     /// Erasing keyframes in the middle of the track keeps the path whole:

@@ -30,6 +30,7 @@
 //! `humem eval`, bottom up:
 //! - [`replay_rows`]: the replay's rows and their tables;
 //! - [`replay_variant`]: a replay pass's further settings (`--replay-variant`);
+//! - [`replay_steps`]: what a replay sends, step by step;
 //! - [`verdict_replay`]: the stream replayed with the ground truth as
 //!   geometric verification, without and with verdicts (`--replay-verdicts`);
 //! - [`sent_log`]: what the ORB-SLAM3 plugin sent, as a replay's steps
@@ -75,6 +76,7 @@ mod progress;
 pub mod protocol;
 pub mod remote;
 pub mod replay_rows;
+pub mod replay_steps;
 pub mod replay_variant;
 pub mod report;
 pub mod restart_bench;

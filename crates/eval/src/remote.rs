@@ -309,7 +309,7 @@ impl Remote {
         let (poses, own_poses) = verdict_replay::replay_poses(dir, dataset, &options)?;
         if !own_poses {
             tracing::warn!(
-                "{} has no poses: the replay stands its frames along a line, and a server's drift envelope leaves out every revisit on it; replay it against a server run with vpr.max_drift_ratio = 1",
+                "{} has no poses: the replay stands its frames along a line, and a server's drift envelope lowers every revisit on it; replay it against a server run with vpr.max_drift_ratio = 1",
                 dataset.name
             );
         }

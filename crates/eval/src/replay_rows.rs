@@ -49,6 +49,26 @@ pub struct ReplayRow {
     /// apart by whether that top candidate is true: the pose spread of the
     /// top matches as evidence of uncertainty (SUE, Zaffar et al.).
     pub top_spread: TrueAndFalse,
+    /// Every query asked and its whole ranking, in stream order (the
+    /// `all` row only; empty in the others): what `--json` gives for
+    /// judging another rule on the same answers without a second run.
+    #[serde(skip_serializing_if = "Vec::is_empty")]
+    pub answers: Vec<ReplayAnswer>,
+}
+
+/// One query of a replay and its ranking.
+#[derive(Debug, Clone, PartialEq, Serialize)]
+pub struct ReplayAnswer {
+    /// The query's frame index.
+    pub query: usize,
+    /// Which visit of its place (1: no earlier true place where it looked).
+    pub visit: usize,
+    /// The store's threshold when it was asked.
+    pub threshold: f32,
+    /// The candidates, best first: frame index, score, the drift
+    /// envelope's `r` (a candidate of the query's own map) and whether
+    /// the ground truth calls it a true place.
+    pub ranked: Vec<(usize, f32, Option<f64>, bool)>,
 }
 
 /// Candidates whose positions [`ReplayRow::top_spread`] spreads.

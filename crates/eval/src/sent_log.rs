@@ -24,7 +24,7 @@ use std::collections::HashMap;
 
 use anyhow::{bail, Context};
 
-use super::verdict_replay::{Step, ROBOT};
+use super::replay_steps::{Step, ROBOT};
 use humem_core::keyframe::Pose;
 
 /// One line of the sent log. `kf` is ORB-SLAM3's keyframe id (`mnId`),

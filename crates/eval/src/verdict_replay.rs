@@ -43,7 +43,7 @@ use anyhow::Context;
 use super::dataset::{self, Dataset};
 use super::metrics;
 use super::precision::{self, OperatingPoint, ScoredQuery};
-use super::replay_rows::{FalseAlarm, ReplayRow, TrueAndFalse, SPREAD_OF_TOP};
+use super::replay_rows::{FalseAlarm, ReplayAnswer, ReplayRow, TrueAndFalse, SPREAD_OF_TOP};
 use super::truth::Kind;
 use humem_core::index::Index;
 use humem_core::keyframe::{Features, KeyframeKey, Pose, SemanticKeyframe, SessionKey};
@@ -55,6 +55,8 @@ use humem_core::vpr::feedback::squared_distance;
 use humem_core::vpr::feedback::VerdictParams;
 use humem_core::vpr::params::{Layers, VprParams};
 
+pub use super::replay_steps::StreamPoses;
+pub(crate) use super::replay_steps::{dataset_steps, Step, REFERENCE_ROBOT, ROBOT};
 use super::replay_variant::Variant;
 use humem_server::pipeline::query;
 use humem_server::pipeline::request::{QueryKind, QuerySpec};
@@ -144,72 +146,6 @@ pub fn visit_of(matches: Option<&Vec<usize>>, gap: usize) -> usize {
     sorted.sort_unstable();
     let split = (gap / 2).max(1);
     1 + 1 + sorted.windows(2).filter(|w| w[1] - w[0] > split).count()
-}
-
-/// Robot of the drive (a loop's frames, a pairs set's queries).
-pub(crate) const ROBOT: &str = "drive";
-/// Robot of a pairs set's references.
-pub(crate) const REFERENCE_ROBOT: &str = "reference";
-
-/// One step of a replay: what a SLAM client sends, in the order it sends
-/// it. A data set's own stream stores every frame as keyframe `image` of
-/// map 0 and asks about it ([`dataset_steps`]); a recorded trajectory
-/// (`trajectory_replay`) also moves and erases keyframes, in maps of its
-/// own.
-#[derive(Debug, Clone, PartialEq)]
-pub(crate) enum Step {
-    /// Stores image `image` of `robot` ([`ROBOT`] or [`REFERENCE_ROBOT`])
-    /// as keyframe `id` of map `map` of its one session, at `pose`.
-    Store {
-        robot: &'static str,
-        id: u64,
-        image: usize,
-        map: u64,
-        pose: Pose,
-    },
-    /// Moves keyframe `id` of the drive to `pose` in map `map` (a pose
-    /// update after a loop correction or a merge).
-    Move { id: u64, map: u64, pose: Pose },
-    /// Erases keyframe `id` of the drive.
-    Erase { id: u64 },
-    /// Asks about stored keyframe `id` of the drive.
-    Ask { id: u64 },
-}
-
-/// A data set streamed as the plugin streams it: for pairs, the
-/// references first, then each query frame stored and asked about; for a
-/// loop, each frame stored and (once `gap` frames are stored) asked about.
-/// Keyframe ids are image indices, all in map 0.
-pub(crate) fn dataset_steps(
-    dataset: &Dataset,
-    (reference_poses, query_poses): &StreamPoses,
-) -> Vec<Step> {
-    let pairs = dataset.kind == Kind::Pairs;
-    let mut steps = Vec::new();
-    if pairs {
-        for (i, &pose) in reference_poses.iter().enumerate() {
-            steps.push(Step::Store {
-                robot: REFERENCE_ROBOT,
-                id: i as u64,
-                image: i,
-                map: 0,
-                pose,
-            });
-        }
-    }
-    for (q, &pose) in query_poses.iter().enumerate() {
-        steps.push(Step::Store {
-            robot: ROBOT,
-            id: q as u64,
-            image: q,
-            map: 0,
-            pose,
-        });
-        if pairs || q >= dataset.min_frame_gap {
-            steps.push(Step::Ask { id: q as u64 });
-        }
-    }
-    steps
 }
 
 /// Where a pass stores keyframes, asks and reports: the in-process index
@@ -381,9 +317,6 @@ impl ReplayStream for LocalStream<'_> {
         Ok(())
     }
 }
-
-/// The poses a replay stores its frames at: `(references, queries)`.
-pub type StreamPoses = (Vec<Pose>, Vec<Pose>);
 
 /// The keyframe poses of a data set: `(references, queries)` (for a loop,
 /// the same), the data set's own or the stand-in line, drifted by
@@ -565,12 +498,25 @@ impl<'a> Judged<'a> {
     fn account(
         &self,
         group: &mut Group,
+        visit: usize,
         ranked: &[Ranked],
         threshold: f32,
         point: OperatingPoint,
     ) -> Vec<(u64, bool, f32)> {
         let held_of = |id: u64| self.pool.by_id.get(&id);
         let has_match = !self.matches.is_empty();
+        group.answered.push(ReplayAnswer {
+            query: self.query.image,
+            visit,
+            threshold,
+            ranked: ranked
+                .iter()
+                .map(|r| {
+                    let image = held_of(r.id).map_or(usize::MAX, |h| h.image);
+                    (image, r.score, r.drift_ratio, self.is_true(r.id))
+                })
+                .collect(),
+        });
         if let Some(top) = ranked.first().filter(|r| r.score > threshold) {
             let positions: Vec<[f64; 3]> = ranked
                 .iter()
@@ -697,10 +643,9 @@ pub(crate) async fn replay_pass<S: ReplayStream>(
                 };
                 let pool = if pairs { &references } else { &drive };
                 let judged = Judged::new(dataset, pool, q, query, pairs);
-                let group = groups
-                    .entry(visit_of(Some(&judged.matches), gap))
-                    .or_default();
-                let sent = judged.account(group, &asked.ranked, threshold, point);
+                let visit = visit_of(Some(&judged.matches), gap);
+                let group = groups.entry(visit).or_default();
+                let sent = judged.account(group, visit, &asked.ranked, threshold, point);
                 for (id, truth, score) in sent {
                     // Drawn for every candidate sent, in every pass alike.
                     let missed = (rng.next() as f64 / u64::MAX as f64) < options.wrong_rejections;
@@ -727,9 +672,13 @@ pub(crate) async fn replay_pass<S: ReplayStream>(
         all.false_alarms.extend(group.false_alarms.iter().cloned());
         all.ratios.extend(&group.ratios);
         all.spreads.extend(&group.spreads);
+        all.answered.extend(group.answered.iter().cloned());
     }
     all.false_alarms.sort_by_key(|f| f.query);
-    rows.push(all.row(pass, "all", point));
+    all.answered.sort_by_key(|a| a.query);
+    let mut row = all.row(pass, "all", point);
+    row.answers = all.answered;
+    rows.push(row);
     Ok(rows)
 }
 
@@ -742,6 +691,7 @@ struct Group {
     false_alarms: Vec<FalseAlarm>,
     ratios: TrueAndFalse,
     spreads: TrueAndFalse,
+    answered: Vec<ReplayAnswer>,
 }
 
 /// Root mean square distance of `positions` from their centroid.
@@ -779,6 +729,7 @@ impl Group {
             false_alarm_list: self.false_alarms.clone(),
             drift_ratios: self.ratios.sorted(),
             top_spread: self.spreads.sorted(),
+            answers: Vec::new(),
         }
     }
 }

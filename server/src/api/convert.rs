@@ -94,6 +94,7 @@ pub fn candidate(c: &Candidate) -> proto::Candidate {
                 path: d.path,
                 ratio: d.ratio(),
                 allowance: d.allowance,
+                penalty: d.penalty,
             }),
             text_conflicts: c
                 .text_conflicts

@@ -378,16 +378,18 @@ class Evidence(_message.Message):
     def __init__(self, scene_score: _Optional[float] = ..., descriptor_cosine: _Optional[float] = ..., scene_compatibility: _Optional[float] = ..., temporal_depth: _Optional[int] = ..., object_score: _Optional[float] = ..., text_score: _Optional[float] = ..., text_distinctiveness: _Optional[float] = ..., corroboration: _Optional[float] = ..., object_matches: _Optional[_Iterable[_Union[ObjectMatch, _Mapping]]] = ..., text_matches: _Optional[_Iterable[_Union[TextMatch, _Mapping]]] = ..., raw_score: _Optional[float] = ..., scene_confidence: _Optional[float] = ..., null_median: _Optional[float] = ..., null_samples: _Optional[int] = ..., contradiction: _Optional[float] = ..., text_contradiction: _Optional[float] = ..., object_absence: _Optional[float] = ..., text_conflicts: _Optional[_Iterable[_Union[TextConflict, _Mapping]]] = ..., missing_objects: _Optional[_Iterable[_Union[MissingObject, _Mapping]]] = ..., verdict_penalty: _Optional[float] = ..., verdict_support: _Optional[float] = ..., verdict_rejections: _Optional[int] = ..., verdict_acceptances: _Optional[int] = ..., drift: _Optional[_Union[DriftEnvelope, _Mapping]] = ...) -> None: ...
 
 class DriftEnvelope(_message.Message):
-    __slots__ = ("distance", "path", "ratio", "allowance")
+    __slots__ = ("distance", "path", "ratio", "allowance", "penalty")
     DISTANCE_FIELD_NUMBER: _ClassVar[int]
     PATH_FIELD_NUMBER: _ClassVar[int]
     RATIO_FIELD_NUMBER: _ClassVar[int]
     ALLOWANCE_FIELD_NUMBER: _ClassVar[int]
+    PENALTY_FIELD_NUMBER: _ClassVar[int]
     distance: float
     path: float
     ratio: float
     allowance: float
-    def __init__(self, distance: _Optional[float] = ..., path: _Optional[float] = ..., ratio: _Optional[float] = ..., allowance: _Optional[float] = ...) -> None: ...
+    penalty: float
+    def __init__(self, distance: _Optional[float] = ..., path: _Optional[float] = ..., ratio: _Optional[float] = ..., allowance: _Optional[float] = ..., penalty: _Optional[float] = ...) -> None: ...
 
 class TextConflict(_message.Message):
     __slots__ = ("query_object", "candidate_object", "query_text", "candidate_text", "agreement", "conflict")

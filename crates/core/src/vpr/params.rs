@@ -119,8 +119,9 @@ pub struct VprParams {
     pub max_view_change_deg: f64,
     /// The drift envelope's bound ([`super::drift`]): a candidate of the
     /// query's own map lying farther from it than this share of the path
-    /// between them, plus the same-place radius, is left out. 1: off
-    /// (maps whose poses are not one continuous odometry).
+    /// between them, plus the same-place radius, loses score, up to
+    /// [`super::drift::PENALTY`] at twice the share. 1: off (maps whose
+    /// poses are not one continuous odometry).
     pub max_drift_ratio: f64,
     /// `ω_r`, importance of semantic class `r` in `S_o`.
     pub class_weights: BTreeMap<String, f32>,
@@ -230,7 +231,7 @@ impl Default for VprParams {
             absence_min_area: 0.01,
             max_candidates: 5,
             max_view_change_deg: 60.0,
-            max_drift_ratio: 0.1,
+            max_drift_ratio: 0.05,
             class_weights: BTreeMap::new(),
             default_class_weight: 1.0,
             generic_words: GENERIC_WORDS.iter().map(|w| w.to_string()).collect(),
