@@ -236,6 +236,8 @@ def evaluate_run(rd, gt, frames, laps=3):
     res["maps"] = len(maps)
 
     queries = cands = cands_true = cands_near = 0
+    # Loop (the query's own map) and merge (another map) candidates: [all, false], near misses not false.
+    by_kind = {"loop": [0, 0], "merge": [0, 0]}
     lap_cands, lap_true, lap_near = [0] * laps, [0] * laps, [0] * laps
     verdicts = {"loop": [0, 0], "merge": [0, 0], "relocalisation": [0, 0]}  # kind -> [all, accepted]
     accepted = {"loop": [], "merge": []}
@@ -249,11 +251,13 @@ def evaluate_run(rd, gt, frames, laps=3):
                 queries += 1
                 qi = frames.index(float(m.group(3)))
                 lap = min(laps - 1, qi * laps // max(1, len(gt)))
-                for grp in (5, 7):
+                for grp, kind in ((5, "loop"), (7, "merge")):
                     for t in filter(None, m.group(grp).split(",")):
                         ci = frames.index(float(t))
                         ok = true_pair(gt, qi, ci)[0]
                         near = near_miss(gt, qi, ci)
+                        by_kind[kind][0] += 1
+                        by_kind[kind][1] += not ok and not near
                         cands += 1
                         cands_true += ok
                         cands_near += near
@@ -285,7 +289,7 @@ def evaluate_run(rd, gt, frames, laps=3):
                 attempts += 1
                 attempt_cands += int(m.group(3))
     res.update({"queries": queries, "candidates": cands, "candidates_true": cands_true,
-                "candidates_near": cands_near, "lap_candidates": lap_cands, "lap_candidates_true": lap_true,
+                "candidates_near": cands_near, "candidates_by_kind": by_kind, "lap_candidates": lap_cands, "lap_candidates_true": lap_true,
                 "lap_candidates_near": lap_near, "verdicts": verdicts,
                 "loops": accepted["loop"],
                 "merges": accepted["merge"], "relocalisations": relocs,
@@ -403,9 +407,9 @@ def main():
           "several; ATE: median keyframe ATE of the runs that ended in one map):")
     print()
     print("| mode | runs | accepted loops and merges (false) | candidates (true, near miss) | candidate precision "
-          "| per batch | relocalisations | runs ending in one map | median one-map KF ATE | median frames lost "
-          "| store = ORB-SLAM3 |")
-    print("| --- | --- | --- | --- | --- | --- | --- | --- | --- | --- | --- |")
+          "| per batch | loop candidates (false) | merge candidates (false) | relocalisations | runs ending in one map "
+          "| median one-map KF ATE | median frames lost | store = ORB-SLAM3 |")
+    print("| --- | --- | --- | --- | --- | --- | --- | --- | --- | --- | --- | --- | --- |")
     modes = []
     for r in results:
         if "error" not in r and r["mode"] not in modes:
@@ -421,9 +425,12 @@ def main():
         per_batch = ", ".join(precision(*[sum(r[k] for r in rs if r["batch"] == b)
                                           for k in ("candidates_true", "candidates", "candidates_near")])
                               for b in batches) if len(batches) > 1 else "—"
-        print("| %s | %d | %d (%d) | %d (%d, %d) | %s | %s | %d | %d | %s | %g | %s |"
+        kinds = ["%d (%d)" % (sum(r["candidates_by_kind"][k][0] for r in rs), sum(r["candidates_by_kind"][k][1] for r in rs))
+                 for k in ("loop", "merge")]
+        print("| %s | %d | %d (%d) | %d (%d, %d) | %s | %s | %s | %s | %d | %d | %s | %g | %s |"
               % (mode, len(rs), len(acc), sum(not p["true"] for p in acc), total[1], total[0], total[2],
-                 precision(*total), per_batch, sum(len(r["relocalisations"]) for r in rs), len(one), med,
+                 precision(*total), per_batch, kinds[0], kinds[1], sum(len(r["relocalisations"]) for r in rs),
+                 len(one), med,
                  float(np.median([r["frames_lost"] for r in rs])), stores))
     print()
     print("Accepted loops and merges (source frames; ground-truth distance and angle between them):")
