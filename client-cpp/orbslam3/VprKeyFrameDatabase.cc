@@ -286,10 +286,13 @@ VprKeyFrameDatabase::Counters VprKeyFrameDatabase::GetCounters()
     return c;
 }
 
-void VprKeyFrameDatabase::RecordSentLocked(const std::string &line)
+void VprKeyFrameDatabase::RecordSentLocked(const std::string &line, bool flush)
 {
-    if(mSentLog.is_open())
-        mSentLog << line << '\n' << std::flush;
+    if(!mSentLog.is_open())
+        return;
+    mSentLog << line << '\n';
+    if(flush)
+        mSentLog.flush();
 }
 
 void VprKeyFrameDatabase::Log(int level, const std::string &message)
@@ -590,9 +593,11 @@ void VprKeyFrameDatabase::SyncMap(Map* pMap, const char* why, int logLevel)
     if(updates.empty())
         return;
     mClient->UpdatePoses(updates);
+    // One flush for the batch: a global BA sends every keyframe of the map.
     for(size_t i = 0; i < updates.size(); ++i)
         RecordSentLocked("pose " + std::to_string(updates[i].keyframe_id) + " " + std::to_string(mapId) + " " +
-                         PoseText(updates[i].pose));
+                             PoseText(updates[i].pose),
+                         i + 1 == updates.size());
     ++mCounters.poseUpdates;
     mCounters.posesSent += updates.size();
     std::ostringstream m;
@@ -658,7 +663,7 @@ void VprKeyFrameDatabase::clearMap(Map* pMap)
     if(!elsewhere.empty())
         mClient->Erase(elsewhere);
     for(size_t i = 0; i < elsewhere.size(); ++i)
-        RecordSentLocked("erase " + std::to_string(elsewhere[i]));
+        RecordSentLocked("erase " + std::to_string(elsewhere[i]), i + 1 == elsewhere.size());
     ++mCounters.mapResets;
     Log(1, "map " + std::to_string(mapId) + " reset: ResetMap sent (" + std::to_string(n) + " keyframes forgotten)");
 }

@@ -180,7 +180,8 @@ private:
     void SyncMap(Map* pMap, const char* why, int logLevel);
     void Log(int level, const std::string &message);
     // Appends one line to the sent log (HuMem.SentLog), if any; mMutexHm held, so lines are in the order sent.
-    void RecordSentLocked(const std::string &line);
+    // Flushed at once unless `flush` is false (ORB-SLAM3 never deletes its database, so nothing flushes at exit).
+    void RecordSentLocked(const std::string &line, bool flush = true);
     std::string DescribeCandidate(const humem::Candidate &c) const;
     // Whether keyframe id's insert was queued (HuMem holds it, or will once the queue gets there); mMutexHm held.
     bool StoredLocked(unsigned long id, KeyFrame* pKF) const;

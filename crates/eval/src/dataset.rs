@@ -39,13 +39,21 @@ pub fn image_paths(dir: &Path) -> anyhow::Result<Vec<PathBuf>> {
     humem_perception::image::image_files(dir).with_context(|| format!("reading {}", dir.display()))
 }
 
+/// The `(timestamp, pose)` lines of an image folder's TUM pose file, if
+/// one lies beside it.
+fn tum_poses(dir: &Path, folder: &str) -> anyhow::Result<Option<Vec<(f64, truth::Pose)>>> {
+    let tum = dir.join(format!("{folder}_poses.txt"));
+    if !tum.is_file() {
+        return Ok(None);
+    }
+    let text = std::fs::read_to_string(&tum)?;
+    let poses = truth::parse_tum(&text).with_context(|| format!("parsing {}", tum.display()))?;
+    Ok(Some(poses))
+}
+
 /// Poses of an image folder, if a pose file lies beside it.
 pub fn poses(dir: &Path, folder: &str) -> anyhow::Result<Option<Vec<truth::Pose>>> {
-    let tum = dir.join(format!("{folder}_poses.txt"));
-    if tum.is_file() {
-        let text = std::fs::read_to_string(&tum)?;
-        let poses =
-            truth::parse_tum(&text).with_context(|| format!("parsing {}", tum.display()))?;
+    if let Some(poses) = tum_poses(dir, folder)? {
         return Ok(Some(poses.into_iter().map(|(_, p)| p).collect()));
     }
     let kitti = dir.join(format!("{folder}_poses_kitti.txt"));
@@ -61,13 +69,7 @@ pub fn poses(dir: &Path, folder: &str) -> anyhow::Result<Option<Vec<truth::Pose>
 /// Timestamps of an image folder's frames, if a TUM pose file (whose
 /// first column they are) lies beside it.
 pub fn timestamps(dir: &Path, folder: &str) -> anyhow::Result<Option<Vec<f64>>> {
-    let tum = dir.join(format!("{folder}_poses.txt"));
-    if !tum.is_file() {
-        return Ok(None);
-    }
-    let text = std::fs::read_to_string(&tum)?;
-    let poses = truth::parse_tum(&text).with_context(|| format!("parsing {}", tum.display()))?;
-    Ok(Some(poses.into_iter().map(|(t, _)| t).collect()))
+    Ok(tum_poses(dir, folder)?.map(|poses| poses.into_iter().map(|(t, _)| t).collect()))
 }
 
 impl Dataset {

@@ -114,22 +114,6 @@ impl LocalDatabase {
         args: &EvalArgs,
         dataset: &Dataset,
     ) -> anyhow::Result<Vec<ReplayRow>> {
-        let fresh;
-        let queries: &[Perceived] = match dataset.kind {
-            Kind::Loop => &self.references,
-            Kind::Pairs => {
-                fresh = perceive_all(
-                    perception,
-                    &dataset.queries,
-                    None,
-                    self.annotations.as_ref(),
-                    self.grey,
-                    "queries (replay)",
-                )
-                .await?;
-                &fresh
-            }
-        };
         let features = |p: &[Perceived]| p.iter().map(|p| p.features.clone()).collect::<Vec<_>>();
         let options = ReplayOptions {
             wrong_rejections: args.wrong_rejections,
@@ -164,6 +148,22 @@ impl LocalDatabase {
             )
             .await;
         }
+        let fresh;
+        let queries: &[Perceived] = match dataset.kind {
+            Kind::Loop => &self.references,
+            Kind::Pairs => {
+                fresh = perceive_all(
+                    perception,
+                    &dataset.queries,
+                    None,
+                    self.annotations.as_ref(),
+                    self.grey,
+                    "queries (replay)",
+                )
+                .await?;
+                &fresh
+            }
+        };
         verdict_replay::replay(
             &config.vpr,
             args.dataset_dir(),

@@ -39,9 +39,10 @@ pub struct ReplayRow {
     /// The false alarms themselves, in stream order: which queries without
     /// a true place were answered, and by what.
     pub false_alarm_list: Vec<FalseAlarm>,
-    /// `r` of the candidates sent (a loop's: distance over the path along
-    /// the stream between query and candidate, poses as sent), true and
-    /// false ones apart: what the drift envelope's bound has to separate.
+    /// `r` of the candidates sent of the query's own map (the drift
+    /// envelope's distance over the path along the map's track, poses as
+    /// stored when the query was asked), true and false ones apart: what
+    /// the envelope has to separate.
     pub drift_ratios: TrueAndFalse,
     /// The spread of the stored positions of the top [`SPREAD_OF_TOP`]
     /// candidates (root mean square distance from their centroid, map
@@ -49,7 +50,7 @@ pub struct ReplayRow {
     /// apart by whether that top candidate is true: the pose spread of the
     /// top matches as evidence of uncertainty (SUE, Zaffar et al.).
     pub top_spread: TrueAndFalse,
-    /// Every query asked and its whole ranking, in stream order (the
+    /// Every query asked and its whole ranking, by query frame (the
     /// `all` row only; empty in the others): what `--json` gives for
     /// judging another rule on the same answers without a second run.
     #[serde(skip_serializing_if = "Vec::is_empty")]

@@ -49,26 +49,21 @@ pub(crate) fn dataset_steps(
     (reference_poses, query_poses): &StreamPoses,
 ) -> Vec<Step> {
     let pairs = dataset.kind == Kind::Pairs;
+    let store = |robot, i: usize, pose| Step::Store {
+        robot,
+        id: i as u64,
+        image: i,
+        map: 0,
+        pose,
+    };
     let mut steps = Vec::new();
     if pairs {
         for (i, &pose) in reference_poses.iter().enumerate() {
-            steps.push(Step::Store {
-                robot: REFERENCE_ROBOT,
-                id: i as u64,
-                image: i,
-                map: 0,
-                pose,
-            });
+            steps.push(store(REFERENCE_ROBOT, i, pose));
         }
     }
     for (q, &pose) in query_poses.iter().enumerate() {
-        steps.push(Step::Store {
-            robot: ROBOT,
-            id: q as u64,
-            image: q,
-            map: 0,
-            pose,
-        });
+        steps.push(store(ROBOT, q, pose));
         if pairs || q >= dataset.min_frame_gap {
             steps.push(Step::Ask { id: q as u64 });
         }
