@@ -21,13 +21,18 @@
 //!   its place there: no object of its class that is unread, reads the
 //!   same, or reads another distinctive text (a disagreement, left to the
 //!   text term); a sign there that reads only generic words is none.
-//!   "Should have seen" is either size (at least `absence_min_area`
-//!   of the image) or legibility: the other frame read text near that place,
-//!   so its OCR worked there and would have read this sign too. Requiring one
-//!   of the two keeps OCR failures (night, fog, a sign too small to read in
-//!   one frame) from counting as absences. It is looked for in both
-//!   directions, since either frame may be the one that shows the extra
-//!   sign.
+//!   "Should have seen" is legibility where it was shown: the other frame
+//!   read text near that place, so its OCR worked there and would have read
+//!   this sign too; or size (at least `absence_min_area` of the image) in a
+//!   frame whose OCR read some text elsewhere. A frame that read no text at
+//!   all shows no sign that its OCR could read anything: at night the
+//!   renders' signs are as bright and as contrasted as by day (so exposure
+//!   and contrast do not tell), but bloom and sensor noise leave nothing
+//!   legible, and the absence of every sign there is the camera's, not the
+//!   place's. Requiring one of the two keeps OCR failures (night, fog, a
+//!   sign too small to read in one frame) from counting as absences. It is
+//!   looked for in both directions, since either frame may be the one that
+//!   shows the extra sign.
 
 use crate::keyframe::ObjectObservation;
 use crate::numeric::clip01;
@@ -190,11 +195,17 @@ fn has_counterpart(o: &ObjectObservation, other: &[ObjectObservation], params: &
     })
 }
 
-/// Whether `other` should have seen `o`: `o` covers at least
-/// `params.absence_min_area` of the image, or `other` read text on an
-/// object at a compatible place (`G ≥ τ_g`), so its OCR could read there.
-fn should_be_seen(o: &ObjectObservation, other: &[ObjectObservation], params: &VprParams) -> bool {
-    o.area >= params.absence_min_area
+/// Whether `other` should have seen `o`: `other` read text on an object
+/// at a compatible place (`G ≥ τ_g`), so its OCR could read there; or `o`
+/// covers at least `params.absence_min_area` of the image and `other`
+/// read text somewhere (`other_reads`), so its OCR could read at all.
+fn should_be_seen(
+    o: &ObjectObservation,
+    other: &[ObjectObservation],
+    other_reads: bool,
+    params: &VprParams,
+) -> bool {
+    (other_reads && o.area >= params.absence_min_area)
         || other
             .iter()
             .any(|c| !c.texts.is_empty() && spatial_kernel(o, c, params) >= params.tau_g)
@@ -211,11 +222,12 @@ fn missing_from(
     other: &[ObjectObservation],
     params: &VprParams,
 ) -> (f32, Vec<(usize, f32)>) {
+    let other_reads = other.iter().any(|c| !c.texts.is_empty());
     let mut total = 0.0f32;
     let mut missing = Vec::new();
     for (i, o) in side.iter().enumerate() {
         let w = profile.object_weight(i) * clip01(o.confidence);
-        if w <= 0.0 || !should_be_seen(o, other, params) {
+        if w <= 0.0 || !should_be_seen(o, other, other_reads, params) {
             continue;
         }
         total += w;
@@ -400,10 +412,13 @@ mod tests {
 
     #[test]
     fn missing_distinctive_objects_by_hand() {
-        // The query's sign (D 0.833333, p 1, area 0.05) has no sign near it:
-        // X_o = 1 → C = g_xo · 1 = 0.5.
+        // The query's sign (D 0.833333, p 1, area 0.05) has no sign near it
+        // in a candidate frame whose OCR read a small EXIT far from it
+        // (x 0.9 against 0.3: G ≈ 0.056, under τ_g; area 0.002, too small
+        // to count either way): X_o = 1 → C = g_xo · 1 = 0.5.
         let q = [sign(0.3, 0.05, &[("AAAA 1111", 1.0)])];
-        let r = run(&q, &[]);
+        let elsewhere = [sign(0.9, 0.002, &[("EXIT", 1.0)])];
+        let r = run(&q, &elsewhere);
         assert_eq!(r.absence, 1.0);
         assert!(close(r.score, 0.5));
         assert_eq!(r.missing.len(), 1);
@@ -411,13 +426,14 @@ mod tests {
         assert_eq!(r.missing[0].object, 0);
         assert!(close(r.missing[0].weight, 0.833333));
         // The other way round: the candidate shows the extra sign.
-        let r = run(&[], &q);
+        let r = run(&elsewhere, &q);
         assert_eq!(r.absence, 1.0);
+        assert_eq!(r.missing.len(), 1);
         assert!(!r.missing[0].in_query);
         // Too small to be sure it would be seen, and nothing read near its
         // place on the other side: not counted.
         let small = [sign(0.3, 0.005, &[("AAAA 1111", 1.0)])];
-        assert_eq!(run(&small, &[]).absence, 0.0);
+        assert_eq!(run(&small, &elsewhere).absence, 0.0);
         // A sign of the same class near it, unread, is a counterpart.
         let unread = [object("sign", 0.5, 0.35, 0.5, 0.05)];
         assert_eq!(run(&q, &unread).absence, 0.0);
@@ -431,6 +447,26 @@ mod tests {
         ];
         let one = [sign(0.2, 0.05, &[("AAAA 1111", 1.0)])];
         assert!(close(run(&two, &one).absence, 0.5));
+    }
+
+    #[test]
+    fn a_frame_that_read_nothing_is_no_proof_of_absence() {
+        // The same large sign (area 0.05) against a frame whose OCR read
+        // nothing at all (a night frame: bloom and noise, every sign
+        // unreadable): no evidence that it could have read this one.
+        let q = [sign(0.3, 0.05, &[("AAAA 1111", 1.0)])];
+        assert_eq!(run(&q, &[]).absence, 0.0);
+        assert_eq!(run(&[], &q).absence, 0.0);
+        // Nor does an object it detected but could not read, far from the
+        // sign (x 0.9): a detector that works is no OCR that reads.
+        let unread_far = [object("sign", 0.9, 0.9, 0.5, 0.05)];
+        let r = run(&q, &unread_far);
+        assert_eq!(r.absence, 0.0, "{r:?}");
+        assert!(r.missing.is_empty());
+        // Once it reads one word anywhere, its OCR works in that frame, and
+        // the large sign's absence counts in full: X_o = 1.
+        let reads_far = [sign(0.9, 0.002, &[("EXIT", 1.0)])];
+        assert_eq!(run(&q, &reads_far).absence, 1.0);
     }
 
     #[test]

@@ -107,8 +107,9 @@ pub struct VprParams {
     pub g_xo: f32,
     /// Smallest area (share of the image) of a distinctive object whose
     /// absence on the other side counts against a candidate by its size
-    /// alone; a smaller one counts only where the other side read text near
-    /// its place.
+    /// alone, where that side read some text (its OCR could read); a
+    /// smaller one counts only where the other side read text near its
+    /// place.
     pub absence_min_area: f32,
     /// Maximum number of selected candidates.
     pub max_candidates: usize,

@@ -258,12 +258,14 @@ mod tests {
     use proptest::prelude::*;
 
     /// Row 0: s_e = 0.6 with a sign identical to the query's ("B-214" vs
-    /// "b214"); row 1: s_e = 0.8, no objects.
+    /// "b214"); row 1: s_e = 0.8, no sign, but a small billboard far from
+    /// it that reads "EXIT" (its OCR reads, so a sign's absence counts).
     fn store() -> VecMemory {
         let mut m = VecMemory::new(2);
         let sign = with_texts(object("sign", 1.0, 0.5, 0.5, 0.1), &[("B-214", 1.0)]);
+        let exit = with_texts(object("billboard", 1.0, 0.9, 0.9, 0.002), &[("EXIT", 1.0)]);
         m.push(features(&[0.6, 0.8], &[], vec![sign]), None);
-        m.push(features(&[0.8, 0.6], &[], vec![]), None);
+        m.push(features(&[0.8, 0.6], &[], vec![exit]), None);
         m
     }
 
@@ -301,7 +303,8 @@ mod tests {
         // B = 0.15 · 1 + 0.25 · 0.666667 · 1 = 0.316667;
         // Λ = 0.6 + 0.4 · 0.316667 = 0.726667.
         // Row 1: S_s = 0.8, B = 0, but the query's distinctive sign (D
-        // 0.666667, area 0.1) has no counterpart there: X_o = 1,
+        // 0.666667, area 0.1) has no counterpart in a frame that read text
+        // (the billboard's EXIT, too small to count itself): X_o = 1,
         // C = g_xo · 1 = 0.5, Λ = 0.8 · (1 − 0.5) = 0.4; the paper's Λ = 0.8.
         let r = run(Layers::FULL);
         assert_eq!(r.len(), 2);
