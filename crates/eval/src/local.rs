@@ -11,6 +11,7 @@
 //! not counted. Apart from the run, which only chooses between this and a
 //! running service ([`crate::remote`]).
 
+use std::borrow::Cow;
 use std::path::PathBuf;
 use std::time::{Duration, Instant};
 
@@ -38,6 +39,7 @@ use humem_server::pipeline::query;
 use humem_server::pipeline::request::{QueryKind, QuerySpec};
 
 /// Features of one image and the perception time without decoding.
+#[derive(Clone)]
 struct Perceived {
     features: Features,
     took: Duration,
@@ -106,6 +108,32 @@ pub(crate) struct LocalDatabase {
 }
 
 impl LocalDatabase {
+    /// The query features of `dataset` under `degradation`: for a clean
+    /// loop the references themselves (its queries are its own frames),
+    /// otherwise its query images perceived anew (`what` names them on the
+    /// progress bar).
+    async fn queries(
+        &self,
+        perception: &Perception,
+        dataset: &Dataset,
+        degradation: Option<&Degradation>,
+        what: &str,
+    ) -> anyhow::Result<Cow<'_, [Perceived]>> {
+        if dataset.kind == Kind::Loop && degradation.is_none() {
+            return Ok(Cow::Borrowed(&self.references));
+        }
+        let perceived = perceive_all(
+            perception,
+            &dataset.queries,
+            degradation,
+            self.annotations.as_ref(),
+            self.grey,
+            what,
+        )
+        .await?;
+        Ok(Cow::Owned(perceived))
+    }
+
     /// `--replay-verdicts` on the clean images.
     pub(crate) async fn replay_verdicts(
         &self,
@@ -148,28 +176,15 @@ impl LocalDatabase {
             )
             .await;
         }
-        let fresh;
-        let queries: &[Perceived] = match dataset.kind {
-            Kind::Loop => &self.references,
-            Kind::Pairs => {
-                fresh = perceive_all(
-                    perception,
-                    &dataset.queries,
-                    None,
-                    self.annotations.as_ref(),
-                    self.grey,
-                    "queries (replay)",
-                )
-                .await?;
-                &fresh
-            }
-        };
+        let queries = self
+            .queries(perception, dataset, None, "queries (replay)")
+            .await?;
         verdict_replay::replay(
             &config.vpr,
             args.dataset_dir(),
             dataset,
             &features(&self.references),
-            &features(queries),
+            &features(&queries),
             options,
             &args.replay_variant,
         )
@@ -218,23 +233,14 @@ impl LocalDatabase {
         selection: &Selection,
     ) -> anyhow::Result<Vec<Samples>> {
         let condition = degrade::condition_name(degradation);
-        // Query features: for a clean loop, the references themselves.
-        let fresh;
-        let queries: &[Perceived] = match (dataset.kind, degradation) {
-            (Kind::Loop, None) => &self.references,
-            _ => {
-                fresh = perceive_all(
-                    perception,
-                    &dataset.queries,
-                    degradation,
-                    self.annotations.as_ref(),
-                    self.grey,
-                    &format!("queries {condition}"),
-                )
-                .await?;
-                &fresh
-            }
-        };
+        let queries = self
+            .queries(
+                perception,
+                dataset,
+                degradation,
+                &format!("queries {condition}"),
+            )
+            .await?;
         // References a query may match: for a loop, those of index ≤ q − gap.
         let admitted = |q: usize| match dataset.kind {
             Kind::Loop => (q + 1).saturating_sub(dataset.min_frame_gap),
