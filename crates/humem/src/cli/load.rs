@@ -67,8 +67,15 @@ pub struct LoadArgs {
     /// Every this many ticks, each robot asks its `other-maps` (or, without
     /// one, its first) query again with `exact` set and compares the top
     /// candidates: how often the answer equals an exact pass's (0: never).
+    /// The robots take turns, so the exact passes are spread over time.
     #[arg(long, default_value_t = 0)]
     pub exact_every: u64,
+    /// Keyframe id of each robot's first keyframe. A run that continues a
+    /// store an earlier run filled starts after that run's last id, so its
+    /// keyframes are appended to the robots' maps as a SLAM system's are;
+    /// ids from 0 replace the stored keyframes instead.
+    #[arg(long, default_value_t = 0)]
+    pub first_keyframe_id: u64,
 }
 
 /// A query scope of `humem load --scopes`.
@@ -142,8 +149,9 @@ struct Tallies {
     insert: Arc<Mutex<Tally>>,
     /// One per scope of `--scopes`, in its order.
     query: Arc<Vec<Mutex<Tally>>>,
-    /// Sampled queries asked again exact: (compared, same top candidate).
-    exact: Arc<Mutex<(u64, u64)>>,
+    /// Sampled queries asked again exact: (compared, same top candidate,
+    /// top candidate at the same place where the descriptors are `places`).
+    exact: Arc<Mutex<(u64, u64, u64)>>,
 }
 
 /// How synthetic descriptors are made (`--descriptors`).
@@ -173,6 +181,13 @@ impl Descriptors {
             }
         }
     }
+}
+
+/// The place of the `places` descriptors that keyframe `id` of a robot
+/// of this load (`load-robot-N`) shows; None for another robot.
+fn load_place(robot_id: &str, id: u64) -> Option<u64> {
+    let robot: u64 = robot_id.strip_prefix("load-robot-")?.parse().ok()?;
+    Some(place_of(PLACES, robot, id))
 }
 
 /// What a robot sends at each tick.
@@ -278,7 +293,7 @@ async fn robot(
     let end = Instant::now() + Duration::from_secs_f64(args.duration);
     let robot_id = format!("load-robot-{robot}");
     let mut calls = Vec::new();
-    let mut tick = 0u64;
+    let mut tick = args.first_keyframe_id;
     while Instant::now() < end {
         ticker.tick().await;
         let keyframe = keyframe(
@@ -339,7 +354,8 @@ async fn robot(
                 exact,
                 ..Default::default()
             };
-            let checked = (exact_every > 0 && tick.is_multiple_of(exact_every)).then(|| {
+            let turn = tick + robot as u64;
+            let checked = (exact_every > 0 && turn.is_multiple_of(exact_every)).then(|| {
                 scopes
                     .iter()
                     .position(|&s| s == LoadScope::OtherMaps)
@@ -374,9 +390,17 @@ async fn robot(
                     if let (Some(approximate), Some(exact)) =
                         (approximate, exact.filter(|r| answered(r.get_ref())))
                     {
+                        let exact = top(exact.get_ref());
+                        let place = |top: &Option<(String, String, u64)>| {
+                            top.as_ref()
+                                .and_then(|(robot, _, id)| load_place(robot, *id))
+                        };
                         let mut same = tallies.exact.lock().unwrap();
                         same.0 += 1;
-                        same.1 += u64::from(approximate == top(exact.get_ref()));
+                        same.1 += u64::from(approximate == exact);
+                        same.2 += u64::from(
+                            place(&approximate).is_some_and(|p| Some(p) == place(&exact)),
+                        );
                     }
                 }
             }
@@ -416,7 +440,7 @@ pub async fn run(args: LoadArgs) -> anyhow::Result<()> {
                 .map(|_| Mutex::new(Tally::new()))
                 .collect(),
         ),
-        exact: Arc::new(Mutex::new((0, 0))),
+        exact: Arc::new(Mutex::new((0, 0, 0))),
     };
     let args = Arc::new(args);
     println!(
@@ -500,12 +524,18 @@ pub async fn run(args: LoadArgs) -> anyhow::Result<()> {
             println!("{:<16} error {code}: {n} (first: {message:?})", "");
         }
     }
-    let (compared, same) = *tallies.exact.lock().unwrap();
+    let (compared, same, same_place) = *tallies.exact.lock().unwrap();
     if compared > 0 {
         println!(
             "\nexact check: {same} of {compared} sampled queries ({:.1} %) have the exact pass's top candidate",
             100.0 * same as f64 / compared as f64
         );
+        if args.images.is_none() && args.descriptors == Descriptors::Places {
+            println!(
+                "             {same_place} of {compared} ({:.1} %) have a top candidate at the exact top candidate's place",
+                100.0 * same_place as f64 / compared as f64
+            );
+        }
     }
     if let Some(pid) = args.server_pid {
         match peak_memory_kib(pid) {
