@@ -19,7 +19,7 @@ use parking_lot::RwLock;
 
 use crate::checkpoint::Checkpoints;
 use crate::error::StoreError;
-use crate::graph_file::GraphSource;
+use crate::graph_file::{GraphOptions, GraphSource};
 use crate::layout::{
     KEYFRAMES_TREE, META_DIM, META_FORMAT, META_TREE, STORE_FORMAT, VERDICTS_BY_CANDIDATE_TREE,
     VERDICTS_TREE,
@@ -51,6 +51,9 @@ pub struct OpenReport {
     pub source: IndexSource,
     /// Where its neighbour graph came from; None where it keeps none.
     pub graph: Option<GraphSource>,
+    /// Large maps whose own graph was loaded from its file (the others'
+    /// are built in the background).
+    pub map_graphs_loaded: usize,
     /// Keyframes in the index.
     pub keyframes: usize,
     /// Time from the call to a ready index.
@@ -85,7 +88,10 @@ pub(crate) fn open(
         neighbour_graph_length,
         map_graphs_from,
     } = options;
-    let neighbour_graph = neighbour_graph.then_some(neighbour_graph_length);
+    let neighbour_graph = neighbour_graph.then_some(GraphOptions {
+        short: neighbour_graph_length,
+        map_graphs_from,
+    });
     let db = sled::Config::new()
         .path(dir)
         .cache_capacity(cache_bytes)
@@ -125,11 +131,6 @@ pub(crate) fn open(
     let verdicts = db.open_tree(VERDICTS_TREE)?;
     let verdicts_by_candidate = db.open_tree(VERDICTS_BY_CANDIDATE_TREE)?;
     let mut index = index;
-    if neighbour_graph.is_some() {
-        // Not saved: every large map's rows wait to enter its graph, and
-        // its loop queries take the exact pass meanwhile.
-        index.keep_map_graphs(map_graphs_from);
-    }
     // A snapshot keeps the rows in the order they were grouped in, and
     // the tree is in key order (robot, session, keyframe): the writer
     // groups only what is appended from now on.
@@ -138,6 +139,7 @@ pub(crate) fn open(
     let opened = OpenReport {
         source,
         graph,
+        map_graphs_loaded: index.saved_map_graphs_taken(),
         keyframes: index.len(),
         elapsed: started.elapsed(),
     };
@@ -147,6 +149,7 @@ pub(crate) fn open(
         descriptor_dim = index.dim(),
         from = ?opened.source,
         graph = ?opened.graph,
+        map_graphs_loaded = opened.map_graphs_loaded,
         seconds = opened.elapsed.as_secs_f64(),
         "store opened"
     );
@@ -248,9 +251,8 @@ struct SnapshotLoad {
 /// Loads the index: from the snapshot brought up to date by the journal
 /// when that is possible, else from every record in the tree. The store's directory is
 /// `placement`'s, and the descriptors leave memory as it says while they
-/// load, not after. With `neighbour_graph` (the length it shortens
-/// descriptors to), the index keeps one from the start (see
-/// [`graph_file`]).
+/// load, not after. With `neighbour_graph`, the index keeps one (and the
+/// large maps theirs) from the start (see [`graph_file`]).
 #[allow(clippy::too_many_arguments)]
 fn load_index(
     placement: &DescriptorPlacement,
@@ -260,7 +262,7 @@ fn load_index(
     store_id: u128,
     dim: usize,
     sequence: u64,
-    neighbour_graph: Option<usize>,
+    neighbour_graph: Option<GraphOptions>,
 ) -> Result<LoadedIndex, StoreError> {
     let reason = match from_snapshot(
         placement,
@@ -305,10 +307,10 @@ fn load_index(
         }
     }
     placement.apply(&mut index);
-    let graph = if let Some(short) = neighbour_graph {
+    let graph = if let Some(options) = neighbour_graph {
         // Built once from every row (on every core), not row by row,
         // unless a restore left one in step with the records.
-        graph_file::attach_rebuilt(placement.dir(), &mut index, short)
+        graph_file::attach_rebuilt(placement.dir(), &mut index, options)
     } else {
         graph_file::discard_restored(placement.dir());
         None
@@ -359,7 +361,7 @@ fn from_snapshot(
     store_id: u128,
     dim: usize,
     sequence: u64,
-    neighbour_graph: Option<usize>,
+    neighbour_graph: Option<GraphOptions>,
 ) -> Result<Result<SnapshotLoad, String>, StoreError> {
     let Some((header, mut index)) =
         snapshot::read(placement.dir(), store_id, dim, placement.rule())?
@@ -379,8 +381,8 @@ fn from_snapshot(
             header.sequence
         )));
     }
-    let graph = if let Some(short) = neighbour_graph {
-        graph_file::attach(placement.dir(), &mut index, short)
+    let graph = if let Some(options) = neighbour_graph {
+        graph_file::attach(placement.dir(), &mut index, options)
     } else {
         None
     };

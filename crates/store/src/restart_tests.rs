@@ -4,7 +4,9 @@
 
 use super::tests::{kf, open_retrying, open_when_free, session};
 use super::*;
+use humem_core::engine::filter::RowFilter;
 use humem_core::keyframe::Pose;
+use humem_core::vpr::eligibility::{QueryContext, Scope};
 use std::time::{Duration, Instant};
 
 /// Opens `dir` with automatic snapshots off, so each test decides when
@@ -670,7 +672,7 @@ async fn a_saved_graph_of_another_length_is_rebuilt_at_open() {
 }
 
 #[tokio::test]
-async fn large_maps_get_their_own_graphs_again_at_every_open() {
+async fn large_maps_graphs_are_saved_with_the_snapshot_and_replayed_changes_reach_them() {
     let dir = tempfile::tempdir().unwrap();
     let open = || {
         open_retrying(
@@ -684,25 +686,74 @@ async fn large_maps_get_their_own_graphs_again_at_every_open() {
             },
         )
     };
+    let with = |id: u64, descriptor: [f32; 3]| {
+        let mut k = kf("a", "s", id, 0);
+        k.features.descriptor = descriptor.to_vec();
+        k
+    };
     {
         let store = open();
+        assert_eq!(store.opened().map_graphs_loaded, 0);
         // Map 0 of robot a reaches the size, map 1 and robot b do not.
-        let mut rows: Vec<_> = (0..12).map(|i| kf("a", "s", i, 0)).collect();
+        let mut rows: Vec<_> = (0..12)
+            .map(|i| with(i, [1.0, i as f32 * 0.1, 0.0]))
+            .collect();
         rows.extend((12..15).map(|i| kf("a", "s", i, 1)));
         rows.extend((0..9).map(|i| kf("b", "s", i, 0)));
         insert(&store, rows).await;
-        assert!(store.wait_for_neighbour_graph(std::time::Duration::from_secs(60)));
+        assert!(store.wait_for_neighbour_graph(Duration::from_secs(60)));
         assert_eq!(store.index().map_graphs().0, 1);
         assert_eq!(store.index().map_graphs().1, 12);
         store.snapshot().unwrap();
+        let saved: Vec<_> = std::fs::read_dir(graph_file::maps_path(dir.path()))
+            .unwrap()
+            .collect();
+        assert_eq!(saved.len(), 1, "one large map, one saved graph");
+        // After the snapshot, in the journal only: one keyframe of the
+        // large map replaced by a descriptor no other has, one erased.
+        insert(&store, vec![with(5, [0.0, 0.0, 1.0])]).await;
+        store
+            .apply(Mutation::Erase {
+                session: session("a", "s"),
+                keyframe_ids: vec![7],
+            })
+            .await
+            .unwrap();
     }
-    // Not saved: started again from the rows, in the background.
     let store = open();
-    assert!(store.wait_for_neighbour_graph(std::time::Duration::from_secs(60)));
-    assert_eq!(store.index().map_graphs().0, 1);
-    assert_eq!(store.index().map_graphs().1, 12);
+    assert_eq!(store.opened().source, IndexSource::Snapshot { replayed: 2 });
+    assert_eq!(store.opened().map_graphs_loaded, 1);
+    assert!(store.wait_for_neighbour_graph(Duration::from_secs(60)));
+    {
+        let index = store.index();
+        let map = index
+            .eligibility(&QueryContext {
+                session: session("a", "s"),
+                keyframe_id: None,
+                frame_id: 0,
+                map_id: 0,
+                min_frame_gap: 0,
+                scope: Scope::SameMap,
+                readable_robots: None,
+            })
+            .group()
+            .expect("a loop query names one map");
+        assert_eq!(index.map_graphs(), (1, 11, index.map_graphs().2));
+        // The replaced keyframe is found by its new descriptor, the erased
+        // one never.
+        let rows = index
+            .nearest_rows_of_map(&[0.0, 0.0, 1.0], 1, map, &|_| true)
+            .unwrap();
+        assert_eq!(index.meta(rows[0]).key, session("a", "s").keyframe(5));
+        let rows = index
+            .nearest_rows_of_map(&[1.0, 0.7, 0.0], 20, map, &|_| true)
+            .unwrap();
+        assert_eq!(rows.len(), 11);
+        assert!(rows.iter().all(|&r| index.meta(r).key.keyframe_id != 7));
+    }
+    // A map that grows large later starts a graph of its own.
     insert(&store, vec![kf("b", "s", 9, 0)]).await;
-    assert!(store.wait_for_neighbour_graph(std::time::Duration::from_secs(60)));
+    assert!(store.wait_for_neighbour_graph(Duration::from_secs(60)));
     assert_eq!(store.index().map_graphs().0, 2);
-    assert_eq!(store.index().map_graphs().1, 22);
+    assert_eq!(store.index().map_graphs().1, 21);
 }

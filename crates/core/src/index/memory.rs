@@ -42,6 +42,28 @@ impl KeyframeMemory for Index {
         self.tags[row]
     }
 
+    fn rows_tagged(&self, mask: u32) -> Vec<usize> {
+        const LANES: usize = 16;
+        let mut rows = Vec::new();
+        let chunks = self.tags.chunks(LANES);
+        for (c, chunk) in chunks.enumerate() {
+            // One vector compare a chunk; few chunks hold a sampled row.
+            if chunk
+                .iter()
+                .fold(false, |any, &tag| any | (tag & mask == 0))
+            {
+                let first = c * LANES;
+                rows.extend(
+                    (first..)
+                        .zip(chunk)
+                        .filter(|&(_, &tag)| tag & mask == 0)
+                        .map(|(row, _)| row),
+                );
+            }
+        }
+        rows
+    }
+
     fn nearest(
         &self,
         query: &[f32],

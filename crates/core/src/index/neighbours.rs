@@ -29,6 +29,7 @@ use std::path::Path;
 use std::sync::Mutex;
 
 use rayon::prelude::*;
+use rustc_hash::FxHashMap;
 
 use crate::engine::filter::RowGroup;
 use crate::engine::graph::{stored_length, GraphError, NeighbourGraph};
@@ -40,18 +41,24 @@ use super::table::{Index, Neighbours};
 /// session and keyframe id, the same in every process and on every
 /// replica.
 pub fn graph_key(key: &KeyframeKey) -> u64 {
+    fnv1a(&[
+        key.robot_id.as_bytes(),
+        key.session_id.as_bytes(),
+        &key.keyframe_id.to_le_bytes(),
+    ])
+}
+
+/// FNV-1a over `parts`, a 0xff byte between each two (no UTF-8 string
+/// holds one, so the parts cannot run into each other).
+pub(super) fn fnv1a(parts: &[&[u8]]) -> u64 {
     let mut hash: u64 = 0xcbf2_9ce4_8422_2325;
-    let mut eat = |bytes: &[u8]| {
-        for &b in bytes {
+    for (i, part) in parts.iter().enumerate() {
+        let separator: &[u8] = if i == 0 { &[] } else { &[0xff] };
+        for &b in separator.iter().chain(part.iter()) {
             hash ^= u64::from(b);
             hash = hash.wrapping_mul(0x0000_0100_0000_01b3);
         }
-    };
-    eat(key.robot_id.as_bytes());
-    eat(&[0xff]);
-    eat(key.session_id.as_bytes());
-    eat(&[0xff]);
-    eat(&key.keyframe_id.to_le_bytes());
+    }
     hash
 }
 
@@ -85,7 +92,7 @@ impl Index {
             }
             None => NeighbourGraph::shortened(dim, self.graph_short)?,
         };
-        let mut rows = HashMap::with_capacity(self.rows.len());
+        let mut rows = FxHashMap::with_capacity_and_hasher(self.rows.len(), Default::default());
         let mut missing = 0;
         let mut absent = Vec::new();
         for (row, meta) in self.rows.iter().enumerate() {
@@ -370,7 +377,7 @@ impl Index {
 pub(super) fn propose(
     graph: &NeighbourGraph,
     waiting: &[u64],
-    rows: &HashMap<u64, u32>,
+    rows: &FxHashMap<u64, u32>,
     query: &[f32],
     count: usize,
     keep: &(dyn Fn(usize) -> bool + Sync),
@@ -404,5 +411,33 @@ impl GraphAdditions {
     /// the store's graph and the maps'.
     pub fn taken(&self) -> usize {
         self.taken + self.map_taken.iter().map(|(_, n)| n).sum::<usize>()
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::index::MapKey;
+    use crate::keyframe::SessionKey;
+
+    /// Saved graphs name keyframes and maps by these hashes: they must
+    /// not change from one release to the next (values computed
+    /// independently, FNV-1a 64 over the bytes with 0xff between parts).
+    #[test]
+    fn graph_keys_and_map_names_are_stable() {
+        let key = KeyframeKey {
+            robot_id: "robot-a".into(),
+            session_id: "session-1".into(),
+            keyframe_id: 42,
+        };
+        assert_eq!(graph_key(&key), 0x1acc_7ab1_7f15_da3b);
+        let map = MapKey {
+            session: SessionKey {
+                robot_id: "robot-a".into(),
+                session_id: "session-1".into(),
+            },
+            map_id: 3,
+        };
+        assert_eq!(crate::index::map_graph_name(&map), 0xe354_5c81_7a95_8332);
     }
 }

@@ -6,6 +6,7 @@
 //! share its fields through `pub(super)`, and this module needs none of
 //! them, so the index's modules import in one direction only.
 
+use rustc_hash::FxHashMap;
 use std::collections::{BTreeMap, HashMap};
 use std::sync::Mutex;
 
@@ -134,6 +135,11 @@ pub struct Index {
     /// Keyframes from which a map gets a neighbour graph of its own (0:
     /// none; see `map_graphs`).
     pub(super) map_graphs_from: usize,
+    /// Maps' graphs saved earlier, offered to the maps' graphs the next
+    /// neighbour graph starts ([`Index::offer_saved_map_graphs`]).
+    pub(super) saved_map_graphs: HashMap<MapKey, NeighbourGraph>,
+    /// Saved maps' graphs taken by their maps so far.
+    pub(super) saved_map_graphs_taken: usize,
 }
 
 /// A map's track as a path: its keyframe ids ascending, the path driven
@@ -172,8 +178,10 @@ impl TrackPath {
 #[derive(Debug)]
 pub(super) struct Neighbours {
     pub(super) graph: NeighbourGraph,
-    /// Graph key of each keyframe in the graph → its row.
-    pub(super) rows: HashMap<u64, u32>,
+    /// Graph key of each keyframe in the graph → its row. Looked up for
+    /// every keyframe a filtered walk visits; the keys are hashes
+    /// already, so a fast hasher (Fx) does.
+    pub(super) rows: FxHashMap<u64, u32>,
     /// Keyframes left out of the graph: their key's hash was another's,
     /// or the graph refused them. Only an exact pass finds them.
     pub(super) missing: usize,
@@ -194,6 +202,8 @@ pub(super) struct Neighbours {
 /// `map_graphs`).
 #[derive(Debug)]
 pub(super) struct MapGraph {
+    /// The map, as saved graphs name it.
+    pub(super) map: MapKey,
     pub(super) graph: NeighbourGraph,
     /// Graph keys of the map's keyframes that wait to enter it, oldest
     /// first; a key no longer in the store graph's `rows`, or now naming
@@ -238,6 +248,8 @@ impl Index {
             graph_deferred: false,
             graph_short: crate::engine::graph::SHORT_LENGTH,
             map_graphs_from: 0,
+            saved_map_graphs: HashMap::new(),
+            saved_map_graphs_taken: 0,
         }
     }
 

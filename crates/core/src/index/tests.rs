@@ -223,6 +223,26 @@ fn document_frequency_counts_keyframes() {
     assert_eq!(index.keyframe_count(), 2);
 }
 
+#[test]
+fn the_rows_a_tag_mask_keeps_are_those_a_row_by_row_walk_keeps() {
+    let mut index = Index::new(0);
+    // Enough rows for whole chunks and a ragged end, some erased.
+    for id in 0..1000 {
+        index.upsert(kf("s", id, id % 3, "x"));
+    }
+    for id in (0..1000).step_by(7) {
+        let key = kf("s", id, 0, "x").key;
+        index.remove(&key);
+    }
+    for mask in [0, 1, 3, 7, 31, 255, u32::MAX] {
+        let walked: Vec<usize> = (0..index.len())
+            .filter(|&row| index.sample_tag(row) & mask == 0)
+            .collect();
+        assert_eq!(index.rows_tagged(mask), walked, "mask {mask:#x}");
+    }
+    assert_eq!(index.rows_tagged(0).len(), index.len());
+}
+
 mod kept_paths {
     use super::*;
     use proptest::prelude::*;

@@ -233,8 +233,10 @@ where
 /// is a multiple of the power of two at or above the full pass's stride
 /// (between half and all of [`NULL_SAMPLE_CAP`](crate::vpr::calibration::NULL_SAMPLE_CAP)
 /// rows). Chosen by key as the full pass's is, so replicas and restarts
-/// take the same sample; a mask instead of a division, so that walking a
-/// million tags costs about a millisecond.
+/// take the same sample; a mask instead of a division, tested over the
+/// whole tag table at once ([`KeyframeMemory::rows_tagged`]) where the
+/// query admits most of the store, and eligibility only for the rows the
+/// mask keeps.
 fn approximate_sample<M, E>(memory: &M, eligible: &E, admitted: usize) -> Vec<usize>
 where
     M: KeyframeMemory + ?Sized,
@@ -242,12 +244,19 @@ where
 {
     let stride = NullModel::stride(admitted).next_power_of_two();
     let mask = u32::try_from(stride - 1).unwrap_or(u32::MAX);
-    let sampled = |&row: &usize| memory.sample_tag(row) & mask == 0 && eligible.test(row);
     match eligible.partition() {
         // The same rows, in the same order: the partition only leaves out
         // rows the test refuses.
-        Some(rows) => rows.iter().copied().filter(sampled).collect(),
-        None => (0..memory.descriptors().len()).filter(sampled).collect(),
+        Some(rows) => rows
+            .iter()
+            .copied()
+            .filter(|&row| memory.sample_tag(row) & mask == 0 && eligible.test(row))
+            .collect(),
+        None => {
+            let mut rows = memory.rows_tagged(mask);
+            rows.retain(|&row| eligible.test(row));
+            rows
+        }
     }
 }
 

@@ -8,13 +8,16 @@
 //! writer, it also regroups the index's rows by map when that is due, and
 //! adds the keyframes waiting to enter the neighbour graph after the
 //! group's callers are answered (under the read lock, while queries go
-//! on).
+//! on), crossing them off under the write lock that publishes the next
+//! group: a waiting write lock stops new scans from starting until the
+//! scans in progress end, so at a fleet's insert rate every write lock
+//! taken costs the second core part of a scan.
 
 use std::sync::atomic::{AtomicU64, Ordering};
 use std::sync::mpsc::TryRecvError;
 use std::sync::Arc;
 
-use humem_core::index::{Index, RowGrouping};
+use humem_core::index::{GraphAdditions, Index, RowGrouping};
 use parking_lot::RwLock;
 
 use super::queue::{LogReply, Reply};
@@ -45,9 +48,11 @@ pub(super) struct Published {
 /// this many are behind, so memory stays bounded.
 pub(super) const PUBLISH_BACKLOG: usize = 2;
 
-/// Waiting keyframes added to the neighbour graph at a time, on every
-/// core: a few tens of milliseconds at 1280 values, the longest a write
-/// waits behind them.
+/// Waiting keyframe entries (the store's graph's and the maps') added at
+/// a time, on every core: about a millisecond of a core each at a million
+/// keyframes, so a few tens of milliseconds, the longest a group of
+/// writes waits behind them. (A quarter of it answered a fleet's inserts
+/// no sooner at a million keyframes: the groups' own waits dominate.)
 const GRAPH_BATCH: usize = 64;
 
 /// The second stage of the writer: takes each flushed group, in order,
@@ -118,14 +123,24 @@ impl Publisher {
 
     /// Publishes each group as it comes; between groups, and after each,
     /// adds keyframes waiting to enter the neighbour graph, a batch at a
-    /// time, so a restart's backlog never holds up a write for long.
+    /// time, so a restart's backlog never holds up a write for long. A
+    /// batch's keyframes are crossed off under the write lock that
+    /// publishes the next group, or under one of their own where no group
+    /// waits, so that a fleet's inserts cost one write lock a group.
     pub(super) fn run(self, groups: std::sync::mpsc::Receiver<Published>) {
+        let mut added: Option<GraphAdditions> = None;
         loop {
-            let group = if self.index.read().neighbour_graph_waiting() > 0 {
+            let busy = added.is_some() || self.index.read().neighbour_graph_waiting() > 0;
+            let group = if busy {
                 match groups.try_recv() {
                     Ok(group) => Some(group),
                     Err(TryRecvError::Empty) => None,
-                    Err(TryRecvError::Disconnected) => return,
+                    Err(TryRecvError::Disconnected) => {
+                        if let Some(added) = added.take() {
+                            self.index.write().graph_added(added);
+                        }
+                        return;
+                    }
                 }
             } else {
                 match groups.recv() {
@@ -133,29 +148,35 @@ impl Publisher {
                     Err(_) => return,
                 }
             };
-            if let Some(group) = group {
-                self.publish(group);
+            match group {
+                Some(group) => self.publish(group, added.take()),
+                None => {
+                    if let Some(added) = added.take() {
+                        self.index.write().graph_added(added);
+                    }
+                }
             }
-            self.add_waiting_to_graph();
+            added = self.add_waiting_to_graph();
         }
     }
 
     /// Adds up to [`GRAPH_BATCH`] waiting keyframes to the neighbour graph
-    /// under the index's read lock, while queries go on, and crosses them
-    /// off under the write lock (nothing else changes the index in between:
-    /// this thread is its only writer).
-    fn add_waiting_to_graph(&self) {
-        let added = {
-            let index = self.index.read();
-            if index.neighbour_graph_waiting() == 0 {
-                return;
-            }
-            index.add_waiting_to_graph(GRAPH_BATCH)
-        };
-        self.index.write().graph_added(added);
+    /// under the index's read lock, while queries go on; what it added,
+    /// to be crossed off under the write lock before anything else
+    /// changes the index (this thread is its only writer). None where
+    /// nothing waits.
+    fn add_waiting_to_graph(&self) -> Option<GraphAdditions> {
+        let index = self.index.read();
+        if index.neighbour_graph_waiting() == 0 {
+            return None;
+        }
+        Some(index.add_waiting_to_graph(GRAPH_BATCH))
     }
 
-    fn publish(&self, group: Published) {
+    /// Takes `group` into the index under one write lock, crossing off
+    /// the graph's `added` keyframes first (they were added to the index
+    /// as it was before the group), then answers its callers.
+    fn publish(&self, group: Published, added: Option<GraphAdditions>) {
         let Published {
             changes,
             answers,
@@ -164,6 +185,9 @@ impl Publisher {
         } = group;
         let (store_keyframes, store_verdicts) = {
             let mut index = self.index.write();
+            if let Some(added) = added {
+                index.graph_added(added);
+            }
             // The group's keyframes wait to enter the neighbour graph
             // (searches score them exactly meanwhile), so that its callers
             // are answered before they enter it.
