@@ -42,6 +42,17 @@ impl SessionKey {
 }
 
 impl KeyframeKey {
+    /// A 64-bit hash of the key (FNV-1a over robot, session and keyframe
+    /// id), the same in every process, build and replica: what the
+    /// neighbour graphs and the null model's sample name a keyframe by.
+    pub fn stable_hash(&self) -> u64 {
+        crate::numeric::fnv1a(&[
+            self.robot_id.as_bytes(),
+            self.session_id.as_bytes(),
+            &self.keyframe_id.to_le_bytes(),
+        ])
+    }
+
     /// The session this keyframe belongs to.
     pub fn session(&self) -> SessionKey {
         SessionKey {

@@ -25,6 +25,22 @@ pub(crate) fn gather_rows<T: Copy>(data: &[T], stride: usize, order: &[usize]) -
     gathered
 }
 
+/// FNV-1a (64 bits) over `parts`, a 0xff byte between each two (no UTF-8
+/// string holds one, so the parts cannot run into each other): the hash
+/// of a key that every process and build computes alike (graph keys,
+/// saved graphs' names, the null model's sample tags).
+pub(crate) fn fnv1a(parts: &[&[u8]]) -> u64 {
+    let mut hash: u64 = 0xcbf2_9ce4_8422_2325;
+    for (i, part) in parts.iter().enumerate() {
+        let separator: &[u8] = if i == 0 { &[] } else { &[0xff] };
+        for &b in separator.iter().chain(part.iter()) {
+            hash ^= u64::from(b);
+            hash = hash.wrapping_mul(0x0000_0100_0000_01b3);
+        }
+    }
+    hash
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;

@@ -539,14 +539,29 @@ fn nearest_key(store: &Store, descriptor: &[f32]) -> Option<KeyframeKey> {
     Some(index.meta(best).key.clone())
 }
 
+/// Keyframe `id` of robot a's session s in map 0, with `descriptor`.
+fn with(id: u64, descriptor: [f32; 3]) -> SemanticKeyframe {
+    let mut k = kf("a", "s", id, 0);
+    k.features.descriptor = descriptor.to_vec();
+    k
+}
+
+/// Replaces keyframe 5 of robot a's session s by a descriptor no other
+/// has (`[0, 0, 1]`) and erases its keyframe 7.
+async fn replace_5_and_erase_7(store: &Store) {
+    insert(store, vec![with(5, [0.0, 0.0, 1.0])]).await;
+    store
+        .apply(Mutation::Erase {
+            session: session("a", "s"),
+            keyframe_ids: vec![7],
+        })
+        .await
+        .unwrap();
+}
+
 #[tokio::test]
 async fn the_neighbour_graph_is_saved_with_the_snapshot_and_replayed_changes_reach_it() {
     let dir = tempfile::tempdir().unwrap();
-    let with = |id: u64, descriptor: [f32; 3]| {
-        let mut k = kf("a", "s", id, 0);
-        k.features.descriptor = descriptor.to_vec();
-        k
-    };
     {
         let store = open_with_graph(dir.path());
         insert(
@@ -560,16 +575,8 @@ async fn the_neighbour_graph_is_saved_with_the_snapshot_and_replayed_changes_rea
         assert_eq!(store.index().neighbour_graph().unwrap().len(), 30);
         store.snapshot().unwrap();
         assert!(graph_file::path(dir.path()).exists());
-        // After the snapshot, in the journal only: one keyframe replaced
-        // by a descriptor no other has, one erased.
-        insert(&store, vec![with(5, [0.0, 0.0, 1.0])]).await;
-        store
-            .apply(Mutation::Erase {
-                session: session("a", "s"),
-                keyframe_ids: vec![7],
-            })
-            .await
-            .unwrap();
+        // After the snapshot, in the journal only.
+        replace_5_and_erase_7(&store).await;
     }
     let store = open_with_graph(dir.path());
     assert_eq!(store.opened().source, IndexSource::Snapshot { replayed: 2 });
@@ -686,11 +693,6 @@ async fn large_maps_graphs_are_saved_with_the_snapshot_and_replayed_changes_reac
             },
         )
     };
-    let with = |id: u64, descriptor: [f32; 3]| {
-        let mut k = kf("a", "s", id, 0);
-        k.features.descriptor = descriptor.to_vec();
-        k
-    };
     {
         let store = open();
         assert_eq!(store.opened().map_graphs_loaded, 0);
@@ -709,16 +711,8 @@ async fn large_maps_graphs_are_saved_with_the_snapshot_and_replayed_changes_reac
             .unwrap()
             .collect();
         assert_eq!(saved.len(), 1, "one large map, one saved graph");
-        // After the snapshot, in the journal only: one keyframe of the
-        // large map replaced by a descriptor no other has, one erased.
-        insert(&store, vec![with(5, [0.0, 0.0, 1.0])]).await;
-        store
-            .apply(Mutation::Erase {
-                session: session("a", "s"),
-                keyframe_ids: vec![7],
-            })
-            .await
-            .unwrap();
+        // After the snapshot, in the journal only (both in the large map).
+        replace_5_and_erase_7(&store).await;
     }
     let store = open();
     assert_eq!(store.opened().source, IndexSource::Snapshot { replayed: 2 });

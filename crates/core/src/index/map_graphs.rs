@@ -32,8 +32,9 @@ use std::path::Path;
 
 use crate::engine::filter::RowGroup;
 use crate::engine::graph::{stored_length, GraphError, NeighbourGraph};
+use crate::numeric::fnv1a;
 
-use super::neighbours::{fnv1a, graph_key, propose};
+use super::neighbours::{graph_key, propose};
 use super::table::{Index, MapGraph, MapKey, Neighbours};
 
 /// A map's name for its saved graph: FNV-1a over its robot, session and
@@ -144,10 +145,9 @@ impl Index {
             return;
         }
         let large: Vec<usize> = self
-            .tracks
-            .values()
-            .filter(|track| track.len() >= self.map_graphs_from)
-            .filter_map(|track| track.values().next().copied())
+            .large_maps()
+            .iter()
+            .filter_map(|map| self.tracks[map].values().next().copied())
             .collect();
         for row in large {
             self.start_map_graph(row);

@@ -41,25 +41,7 @@ use super::table::{Index, Neighbours};
 /// session and keyframe id, the same in every process and on every
 /// replica.
 pub fn graph_key(key: &KeyframeKey) -> u64 {
-    fnv1a(&[
-        key.robot_id.as_bytes(),
-        key.session_id.as_bytes(),
-        &key.keyframe_id.to_le_bytes(),
-    ])
-}
-
-/// FNV-1a over `parts`, a 0xff byte between each two (no UTF-8 string
-/// holds one, so the parts cannot run into each other).
-pub(super) fn fnv1a(parts: &[&[u8]]) -> u64 {
-    let mut hash: u64 = 0xcbf2_9ce4_8422_2325;
-    for (i, part) in parts.iter().enumerate() {
-        let separator: &[u8] = if i == 0 { &[] } else { &[0xff] };
-        for &b in separator.iter().chain(part.iter()) {
-            hash ^= u64::from(b);
-            hash = hash.wrapping_mul(0x0000_0100_0000_01b3);
-        }
-    }
-    hash
+    key.stable_hash()
 }
 
 impl Index {

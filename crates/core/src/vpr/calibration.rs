@@ -43,23 +43,11 @@ use crate::vpr::params::VprParams;
 /// deviations of the store's, and every dev data set's store is smaller.
 pub const NULL_SAMPLE_CAP: usize = 2048;
 
-/// A keyframe's sample tag: a hash of its key (FNV-1a, then a finaliser
+/// A keyframe's sample tag: a hash of its key ([`KeyframeKey::stable_hash`], then a finaliser
 /// that spreads every bit into the low ones), the same in every process
 /// and build, so that the null's sample does not depend on row order.
 pub fn sample_tag(key: &KeyframeKey) -> u32 {
-    let mut h: u64 = 0xcbf2_9ce4_8422_2325;
-    let id = key.keyframe_id.to_le_bytes();
-    let bytes = key
-        .robot_id
-        .as_bytes()
-        .iter()
-        .chain(&[0xff])
-        .chain(key.session_id.as_bytes())
-        .chain(&[0xff])
-        .chain(&id);
-    for &b in bytes {
-        h = (h ^ u64::from(b)).wrapping_mul(0x0000_0100_0000_01b3);
-    }
+    let mut h = key.stable_hash();
     h ^= h >> 33;
     h = h.wrapping_mul(0xff51_afd7_ed55_8ccd);
     h ^= h >> 33;
