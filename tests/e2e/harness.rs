@@ -144,14 +144,46 @@ impl Server {
             .expect("connecting to humem")
     }
 
-    /// What the store holds (the Stats RPC).
+    /// What the store holds (the Stats RPC). A call that fails while the
+    /// server still runs is tried once more on a new connection (the
+    /// failure is printed); one that fails because the server is gone
+    /// fails the test, saying so.
     pub async fn stats(&self) -> humem_server::proto::StatsResponse {
-        self.client()
-            .await
-            .stats(humem_server::proto::StatsRequest {})
-            .await
-            .unwrap()
-            .into_inner()
+        let mut tries = 0;
+        loop {
+            let call = self
+                .client()
+                .await
+                .stats(humem_server::proto::StatsRequest {})
+                .await;
+            match call {
+                Ok(reply) => return reply.into_inner(),
+                Err(status) => {
+                    tries += 1;
+                    let state = self.process_state();
+                    assert!(
+                        tries < 2 && (state.starts_with('R') || state.starts_with('S')),
+                        "Stats failed ({status:?}); the server process: {state}"
+                    );
+                    eprintln!("Stats failed ({status:?}) with the server running; trying again");
+                }
+            }
+        }
+    }
+
+    /// The server process's state as /proc shows it (`S (sleeping)`,
+    /// `Z (zombie)` for one that exited), or why it cannot be read.
+    fn process_state(&self) -> String {
+        let status = std::fs::read_to_string(format!("/proc/{}/status", self.pid()));
+        match status {
+            Ok(text) => text
+                .lines()
+                .find_map(|l| l.strip_prefix("State:"))
+                .unwrap_or("unknown")
+                .trim()
+                .to_string(),
+            Err(e) => format!("unreadable: {e}"),
+        }
     }
 
     /// The Prometheus exposition, fetched over plain HTTP/1.1.

@@ -13,7 +13,6 @@ mod cli;
 mod cluster;
 mod cpu;
 mod detector;
-mod documented;
 mod durability;
 mod errors;
 mod eval;

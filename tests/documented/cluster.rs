@@ -1,4 +1,4 @@
-//! Documented examples run as written: the two-replica cluster of
+//! The two-replica cluster as documented: the cluster of
 //! docs/fleet-and-cluster.md ("Start it") is taken from the page itself and
 //! run by `bash` from the repository root — three real `nats-server`
 //! processes and two replicas — with two changes only: the replicas are the
@@ -52,12 +52,17 @@ fn the_documented_two_replica_cluster_starts_and_replicates() {
     let block = block_after("docs/fleet-and-cluster.md", "**Start it**");
     assert!(block.contains("scripts/run.sh"), "{block}");
     // The page's fixed ports must be free, or the failure would be another
-    // program's.
+    // program's; one held for a moment by an outgoing connection is waited
+    // for.
+    let deadline = Instant::now() + Duration::from_secs(60);
     for port in [4220, 4221, 4222, 6220, 6221, 6222, 9461, 9462, 50051, 50052] {
-        assert!(
-            std::net::TcpListener::bind(("127.0.0.1", port)).is_ok(),
-            "port {port}, which docs/fleet-and-cluster.md uses, is taken on this machine"
-        );
+        while std::net::TcpListener::bind(("127.0.0.1", port)).is_err() {
+            assert!(
+                Instant::now() < deadline,
+                "port {port}, which docs/fleet-and-cluster.md uses, is taken on this machine"
+            );
+            std::thread::sleep(Duration::from_millis(500));
+        }
     }
     let tmp = tempfile::tempdir().unwrap();
     // `/tmp/` first: the binary's own path may lie under /tmp.
