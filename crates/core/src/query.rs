@@ -102,6 +102,7 @@ pub fn answer(index: &Index, params: &VprParams, query: &IndexQuery) -> Answer {
     lower_beyond_drift(index, params, query.stored_row, &mut ranked);
     let now = unix_now();
     apply_verdicts(index, params, query.stored_row, &mut ranked, now);
+    leave_out_rivals_beyond_drift(params, &mut ranked);
     let operating_point = index.operating_point(params, now);
     let threshold = query.threshold.unwrap_or(operating_point.threshold);
     let candidates = select(ranked, threshold, query.top_n);
@@ -175,6 +176,28 @@ pub fn lower_beyond_drift(
     if lowered {
         sort_ranked(ranked);
     }
+}
+
+/// Leaves out, where `vpr.leave_out_rivals_beyond_drift` is on, every
+/// candidate of the query's own map beyond the drift envelope that ranks
+/// below one within it ([`drift`](crate::vpr::drift)): the map already
+/// explains the query by a place its drift allows. Runs on the final
+/// order (after the verdicts), so a rival that outranks every allowed
+/// candidate stays, lowered as the envelope lowered it; candidates of
+/// other maps and unmeasured ones are never touched.
+pub fn leave_out_rivals_beyond_drift(params: &VprParams, ranked: &mut Vec<RankedCandidate>) {
+    if !params.leave_out_rivals_beyond_drift {
+        return;
+    }
+    let mut explained = false;
+    ranked.retain(|candidate| match candidate.drift {
+        Some(drift) if drift.beyond() => !explained,
+        Some(_) => {
+            explained = true;
+            true
+        }
+        None => true,
+    });
 }
 
 /// Changes the ranked candidates' scores by SLAM's stored verdicts
@@ -577,8 +600,18 @@ mod tests {
     fn a_store_scaled_by_1_over_37_answers_alike() {
         let positions = out_and_back([0.0, 12.0, 0.0]);
         let scaled: Vec<[f64; 3]> = positions.iter().map(|p| p.map(|x| x / 37.0)).collect();
-        let params = VprParams::default();
         let (metric, small) = (map_along(&positions), map_along(&scaled));
+        // Alike with the rivals beyond the envelope left out too.
+        let leave_out = VprParams {
+            leave_out_rivals_beyond_drift: true,
+            ..VprParams::default()
+        };
+        let (a, b) = (
+            loop_answer(&metric, &leave_out, 100),
+            loop_answer(&small, &leave_out, 100),
+        );
+        assert_eq!(ids(&a, &metric), ids(&b, &small));
+        let params = VprParams::default();
         let a = loop_answer(&metric, &params, 100);
         let b = loop_answer(&small, &params, 100);
         assert_eq!(ids(&a, &metric), ids(&b, &small));
@@ -630,5 +663,52 @@ mod tests {
         let k29 = index.row_of(&drive().keyframe(29)).unwrap();
         let paths = index.track_paths(last_row(&index), &[k29]);
         assert!((paths[0].unwrap() - (213.0 - 29.0 * 1.5)).abs() < 1e-9);
+    }
+
+    /// A query 3 m north of the drive's start: the keyframes near the
+    /// start are revisits within the envelope and rank first; those
+    /// farther along the eastward leg lie beyond it, lowered below them,
+    /// and are left out (kept, lowered, with the rule off). A query 40 m
+    /// north has no candidate within the envelope: the rule leaves its
+    /// ranking as it was.
+    #[test]
+    fn rivals_beyond_the_envelope_below_a_revisit_are_left_out() {
+        let leave_out = VprParams {
+            leave_out_rivals_beyond_drift: true,
+            ..VprParams::default()
+        };
+        let keep = VprParams::default();
+        let back = map_along(&out_and_back([0.0, 3.0, 0.0]));
+        let (on, off) = (
+            loop_answer(&back, &leave_out, 100),
+            loop_answer(&back, &keep, 100),
+        );
+        let beyond = |a: &Answer| {
+            a.candidates
+                .iter()
+                .filter(|c| c.drift.expect("measured").beyond())
+                .count()
+        };
+        let within = |a: &Answer| {
+            a.candidates
+                .iter()
+                .filter(|c| !c.drift.expect("measured").beyond())
+                .map(|c| c.row)
+                .collect::<Vec<_>>()
+        };
+        assert!(beyond(&off) > 0);
+        assert_eq!(beyond(&on), 0);
+        assert!(!within(&on).is_empty());
+        assert_eq!(within(&on), within(&off));
+        assert_eq!(on.candidates[0].row, off.candidates[0].row);
+
+        let away = map_along(&out_and_back([0.0, 40.0, 0.0]));
+        let rows = |a: &Answer| a.candidates.iter().map(|c| c.row).collect::<Vec<_>>();
+        let (on, off) = (
+            loop_answer(&away, &leave_out, 100),
+            loop_answer(&away, &keep, 100),
+        );
+        assert!(!on.candidates.is_empty());
+        assert_eq!(rows(&on), rows(&off));
     }
 }

@@ -98,7 +98,8 @@ pub struct EvalArgs {
     #[arg(long, default_value_t = 0.0)]
     pub replay_pose_drift: f64,
     /// With --replay-verdicts: a further pass with other settings,
-    /// NAME:key=value,… (keys of [vpr.verdicts], and max_drift_ratio);
+    /// NAME:key=value,… (keys of [vpr.verdicts], max_drift_ratio and
+    /// leave_out_rivals_beyond_drift);
     /// repeatable.
     #[arg(long)]
     pub replay_variant: Vec<Variant>,

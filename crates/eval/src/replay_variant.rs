@@ -42,8 +42,8 @@ impl std::str::FromStr for Variant {
 }
 
 impl Variant {
-    /// `base` with this variant's settings (keys of `[vpr.verdicts]` and
-    /// `max_drift_ratio`), checked.
+    /// `base` with this variant's settings (keys of `[vpr.verdicts]`,
+    /// `max_drift_ratio` and `leave_out_rivals_beyond_drift`), checked.
     pub fn apply(&self, base: &VprParams) -> anyhow::Result<VprParams> {
         let mut vpr = base.clone();
         let p = &mut vpr.verdicts;
@@ -70,8 +70,11 @@ impl Variant {
                     p.max_threshold_raise = value.parse().map_err(|_| bad())?
                 }
                 "max_drift_ratio" => vpr.max_drift_ratio = value.parse().map_err(|_| bad())?,
+                "leave_out_rivals_beyond_drift" => {
+                    vpr.leave_out_rivals_beyond_drift = value.parse().map_err(|_| bad())?
+                }
                 other => anyhow::bail!(
-                    "--replay-variant {}: no setting {other:?} (max_drift_ratio, or of [vpr.verdicts]: enabled, radius_steps, radius_m, max_penalty, support_gain, place_graph, half_life_hours, adapt_threshold, target_precision, geometry_miss_rate, min_verdicts, max_threshold_raise)",
+                    "--replay-variant {}: no setting {other:?} (max_drift_ratio, leave_out_rivals_beyond_drift, or of [vpr.verdicts]: enabled, radius_steps, radius_m, max_penalty, support_gain, place_graph, half_life_hours, adapt_threshold, target_precision, geometry_miss_rate, min_verdicts, max_threshold_raise)",
                     self.name
                 ),
             }
@@ -86,14 +89,18 @@ impl Variant {
 mod tests {
     use super::*;
 
-    /// A variant sets the drift envelope's bound beside the verdicts'
-    /// settings, and a bad value names itself.
+    /// A variant sets the drift envelope's bound and rule beside the
+    /// verdicts' settings, and a bad value names itself.
     #[test]
     fn a_variant_sets_the_drift_bound_and_verdict_settings() {
-        let v: Variant = "open:max_drift_ratio=1,max_penalty=0.5".parse().unwrap();
+        let v: Variant =
+            "open:max_drift_ratio=1,max_penalty=0.5,leave_out_rivals_beyond_drift=true"
+                .parse()
+                .unwrap();
         let p = v.apply(&VprParams::default()).unwrap();
         assert_eq!(p.max_drift_ratio, 1.0);
         assert_eq!(p.verdicts.max_penalty, 0.5);
+        assert!(p.leave_out_rivals_beyond_drift);
         let bad: Variant = "bad:max_drift_ratio=0".parse().unwrap();
         let e = bad.apply(&VprParams::default()).unwrap_err().to_string();
         assert!(e.contains("max_drift_ratio"), "{e}");

@@ -124,6 +124,16 @@ pub struct VprParams {
     /// [`super::drift::PENALTY`] at twice the share. 1: off (maps whose
     /// poses are not one continuous odometry).
     pub max_drift_ratio: f64,
+    /// Whether a candidate of the query's own map beyond the drift
+    /// envelope is left out when one within it ranks above it
+    /// ([`super::drift`]): the map already explains the query by a place
+    /// it allows, and a rival it does not allow would only cost SLAM a
+    /// geometric check (or bend the map). Nothing changes where no
+    /// candidate within the envelope ranks higher, so the top candidate
+    /// and the recall at the threshold are what the envelope alone gives.
+    /// Off by default: in drifting replays the candidates it left out were
+    /// true revisits (docs/scoring.md).
+    pub leave_out_rivals_beyond_drift: bool,
     /// `ω_r`, importance of semantic class `r` in `S_o`.
     pub class_weights: BTreeMap<String, f32>,
     /// `ω_r` of classes not listed in `class_weights`.
@@ -240,6 +250,7 @@ impl Default for VprParams {
             max_candidates: 5,
             max_view_change_deg: 60.0,
             max_drift_ratio: 0.05,
+            leave_out_rivals_beyond_drift: false,
             class_weights: BTreeMap::new(),
             default_class_weight: 1.0,
             generic_words: GENERIC_WORDS.iter().map(|w| w.to_string()).collect(),
