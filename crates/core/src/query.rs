@@ -7,7 +7,9 @@
 //! it are left out ([`viewpoint`]), its candidates lying farther away
 //! than the map's drift explains lose score ([`drift`](crate::vpr::drift)),
 //! SLAM's verdicts change the scores
-//! ([`feedback`]), and the store's operating point gives the threshold
+//! ([`feedback`]), where asked those still beyond the drift envelope
+//! below one within it are left out ([`leave_out_rivals_beyond_drift`]),
+//! and the store's operating point gives the threshold
 //! unless the query names one; then the candidates are selected.
 //!
 //! It lives in the core, beside the ranking, so that a query goes down once
