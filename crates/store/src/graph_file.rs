@@ -142,20 +142,7 @@ pub(crate) fn save(dir: &Path, index: &RwLock<Index>) -> Option<UnpublishedGraph
 fn save_map_graphs(dir: &Path, index: &RwLock<Index>) -> bool {
     let temp = maps_temp_path(dir);
     let started = Instant::now();
-    let written = (|| -> Result<usize, GraphError> {
-        let _ = std::fs::remove_dir_all(&temp);
-        std::fs::create_dir_all(&temp).map_err(|e| GraphError::Native(e.to_string()))?;
-        let maps = index.read().maps_with_graphs();
-        let mut written = 0;
-        for map in maps {
-            // A map erased or merged away since has no graph to write.
-            if index.read().save_map_graph(&map, &map_file(&temp, &map))? {
-                written += 1;
-            }
-        }
-        Ok(written)
-    })();
-    match written {
+    match write_map_graphs(&temp, index) {
         Ok(maps) => {
             tracing::debug!(
                 maps,
@@ -170,6 +157,22 @@ fn save_map_graphs(dir: &Path, index: &RwLock<Index>) -> bool {
             false
         }
     }
+}
+
+/// Writes every map's graph into a fresh directory `temp`, each under a
+/// read lock of its own; how many were written.
+fn write_map_graphs(temp: &Path, index: &RwLock<Index>) -> Result<usize, GraphError> {
+    let _ = std::fs::remove_dir_all(temp);
+    std::fs::create_dir_all(temp).map_err(|e| GraphError::Native(e.to_string()))?;
+    let maps = index.read().maps_with_graphs();
+    let mut written = 0;
+    for map in maps {
+        // A map erased or merged away since has no graph to write.
+        if index.read().save_map_graph(&map, &map_file(temp, &map))? {
+            written += 1;
+        }
+    }
+    Ok(written)
 }
 
 impl UnpublishedGraph {

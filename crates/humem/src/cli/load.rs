@@ -149,9 +149,20 @@ struct Tallies {
     insert: Arc<Mutex<Tally>>,
     /// One per scope of `--scopes`, in its order.
     query: Arc<Vec<Mutex<Tally>>>,
-    /// Sampled queries asked again exact: (compared, same top candidate,
-    /// top candidate at the same place where the descriptors are `places`).
-    exact: Arc<Mutex<(u64, u64, u64)>>,
+    /// Sampled queries asked again exact.
+    exact: Arc<Mutex<ExactCheck>>,
+}
+
+/// What the sampled queries asked again with `exact` set found.
+#[derive(Debug, Default, Clone, Copy)]
+struct ExactCheck {
+    /// Queries compared.
+    compared: u64,
+    /// Of them, those whose top candidate is the exact pass's.
+    same: u64,
+    /// Those whose top candidate shows the exact top candidate's place
+    /// (where the descriptors are `places`).
+    same_place: u64,
 }
 
 /// How synthetic descriptors are made (`--descriptors`).
@@ -395,10 +406,10 @@ async fn robot(
                             top.as_ref()
                                 .and_then(|(robot, _, id)| load_place(robot, *id))
                         };
-                        let mut same = tallies.exact.lock().unwrap();
-                        same.0 += 1;
-                        same.1 += u64::from(approximate == exact);
-                        same.2 += u64::from(
+                        let mut check = tallies.exact.lock().unwrap();
+                        check.compared += 1;
+                        check.same += u64::from(approximate == exact);
+                        check.same_place += u64::from(
                             place(&approximate).is_some_and(|p| Some(p) == place(&exact)),
                         );
                     }
@@ -440,7 +451,7 @@ pub async fn run(args: LoadArgs) -> anyhow::Result<()> {
                 .map(|_| Mutex::new(Tally::new()))
                 .collect(),
         ),
-        exact: Arc::new(Mutex::new((0, 0, 0))),
+        exact: Arc::new(Mutex::new(ExactCheck::default())),
     };
     let args = Arc::new(args);
     println!(
@@ -524,7 +535,11 @@ pub async fn run(args: LoadArgs) -> anyhow::Result<()> {
             println!("{:<16} error {code}: {n} (first: {message:?})", "");
         }
     }
-    let (compared, same, same_place) = *tallies.exact.lock().unwrap();
+    let ExactCheck {
+        compared,
+        same,
+        same_place,
+    } = *tallies.exact.lock().unwrap();
     if compared > 0 {
         println!(
             "\nexact check: {same} of {compared} sampled queries ({:.1} %) have the exact pass's top candidate",

@@ -136,9 +136,7 @@ impl Publisher {
                     Ok(group) => Some(group),
                     Err(TryRecvError::Empty) => None,
                     Err(TryRecvError::Disconnected) => {
-                        if let Some(added) = added.take() {
-                            self.index.write().graph_added(added);
-                        }
+                        self.cross_off(added.take());
                         return;
                     }
                 }
@@ -150,13 +148,17 @@ impl Publisher {
             };
             match group {
                 Some(group) => self.publish(group, added.take()),
-                None => {
-                    if let Some(added) = added.take() {
-                        self.index.write().graph_added(added);
-                    }
-                }
+                None => self.cross_off(added.take()),
             }
             added = self.add_waiting_to_graph();
+        }
+    }
+
+    /// Crosses the graph's `added` keyframes off under a write lock of
+    /// their own, where no group's publish takes them.
+    fn cross_off(&self, added: Option<GraphAdditions>) {
+        if let Some(added) = added {
+            self.index.write().graph_added(added);
         }
     }
 
