@@ -29,6 +29,19 @@ pub trait RowFilter: Sync {
         None
     }
 
+    /// Calls `f` with every row of the [partition](RowFilter::partition),
+    /// in no particular order and without gathering them where the filter
+    /// can avoid it; false (and `f` never called) where it names none.
+    fn for_each_in_partition(&self, f: &mut dyn FnMut(usize)) -> bool {
+        match self.partition() {
+            Some(rows) => {
+                rows.iter().for_each(|&row| f(row));
+                true
+            }
+            None => false,
+        }
+    }
+
     /// How many rows can pass at most (the rows of the maps the rule
     /// admits), where the filter knows it cheaply; None: unknown. What a
     /// planner weighs the exact pass's cost by.

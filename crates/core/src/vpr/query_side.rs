@@ -212,10 +212,19 @@ impl<'a> QuerySide<'a> {
     ) -> Vec<ScalHit> {
         let table = ExactTable::new(self, memory, rows);
         rows.par_iter()
+            .with_min_len(PARALLEL_MIN_ROWS)
             .map(|&row| self.exact_hit(params, memory, &table, row))
             .collect()
     }
 }
+
+/// The fewest rows scored exactly that are split across the scan
+/// threads: below it they are scored on the query's own thread. A row
+/// costs a few microseconds, and handing work to the pool and waiting for
+/// it costs tens, with a sleep and a wake-up of each thread: a fleet
+/// server runs a query per core at once, and scoring a neighbour graph's
+/// few hundred candidates across the pool only added switches.
+const PARALLEL_MIN_ROWS: usize = 1024;
 
 /// Exact `s_e` of every step for a set of rows and the rows of their
 /// chains, each row read once, in row order. A row is in the chains of up
@@ -251,7 +260,7 @@ impl ExactTable {
         needed.dedup();
         let s_e = needed
             .par_iter()
-            .with_min_len(64)
+            .with_min_len(PARALLEL_MIN_ROWS)
             .map(|&c| side.exact_row(memory, c, &matrix.row(c)))
             .collect();
         ExactTable { rows: needed, s_e }

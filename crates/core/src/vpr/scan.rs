@@ -128,6 +128,11 @@ where
     }
     let side = QuerySide::new(params, &query.history);
     let matrix = memory.descriptors();
+    if let Some(plan) = approximate_for(params, eligible, matrix.len()) {
+        if let Some(scan) = approximate_scan(params, &side, memory, eligible, plan) {
+            return scan;
+        }
+    }
     let visit = match eligible.partition() {
         Some(rows) => Visit::Only(rows),
         None => Visit::All(matrix.len()),
@@ -139,11 +144,6 @@ where
     } else {
         matrix.len()
     };
-    if let Some(plan) = approximate_for(params, eligible, matrix.len()) {
-        if let Some(scan) = approximate_scan(params, &side, memory, eligible, plan) {
-            return scan;
-        }
-    }
     if codes_first_from(params.scan).is_some_and(|from| rows >= from) {
         compressed_scan(params, &side, memory, eligible, visit)
     } else {
@@ -244,20 +244,19 @@ where
 {
     let stride = NullModel::stride(admitted).next_power_of_two();
     let mask = u32::try_from(stride - 1).unwrap_or(u32::MAX);
-    match eligible.partition() {
-        // The same rows, in the same order: the partition only leaves out
-        // rows the test refuses.
-        Some(rows) => rows
-            .iter()
-            .copied()
-            .filter(|&row| memory.sample_tag(row) & mask == 0 && eligible.test(row))
-            .collect(),
-        None => {
-            let mut rows = memory.rows_tagged(mask);
-            rows.retain(|&row| eligible.test(row));
-            rows
+    // The same rows either way (the partition only leaves out rows the
+    // test refuses), perhaps in another order, which the median ignores.
+    let mut rows = Vec::new();
+    let partitioned = eligible.for_each_in_partition(&mut |row| {
+        if memory.sample_tag(row) & mask == 0 && eligible.test(row) {
+            rows.push(row);
         }
+    });
+    if !partitioned {
+        rows = memory.rows_tagged(mask);
+        rows.retain(|&row| eligible.test(row));
     }
+    rows
 }
 
 /// The median `S_s` of `rows` from the codes' estimates of their products

@@ -76,6 +76,12 @@ pub struct LoadArgs {
     /// ids from 0 replace the stored keyframes instead.
     #[arg(long, default_value_t = 0)]
     pub first_keyframe_id: u64,
+    /// Every robot ticks at the same instant, so the server meets a burst
+    /// of `robots` keyframes at once every period (a worst case). Without
+    /// it the robots' ticks are spread evenly over the period, as the
+    /// keyframes of independent robots arrive.
+    #[arg(long)]
+    pub in_phase: bool,
 }
 
 /// A query scope of `humem load --scopes`.
@@ -299,7 +305,10 @@ async fn robot(
     tallies: Tallies,
 ) {
     let period = Duration::from_secs_f64(1.0 / args.rate.max(0.001));
-    let mut ticker = tokio::time::interval(period);
+    let mut ticker = tokio::time::interval_at(
+        tokio::time::Instant::now() + first_tick_offset(&args, robot, period),
+        period,
+    );
     ticker.set_missed_tick_behavior(tokio::time::MissedTickBehavior::Skip);
     let end = Instant::now() + Duration::from_secs_f64(args.duration);
     let robot_id = format!("load-robot-{robot}");
@@ -423,6 +432,15 @@ async fn robot(
     }
 }
 
+/// How long after the start robot `robot` ticks first: 0 for every robot
+/// with `--in-phase`, else its share of the period.
+fn first_tick_offset(args: &LoadArgs, robot: usize, period: Duration) -> Duration {
+    if args.in_phase {
+        return Duration::ZERO;
+    }
+    period.mul_f64(robot as f64 / args.robots.max(1) as f64)
+}
+
 fn peak_memory_kib(pid: u32) -> Option<u64> {
     let status = std::fs::read_to_string(format!("/proc/{pid}/status")).ok()?;
     status
@@ -455,9 +473,10 @@ pub async fn run(args: LoadArgs) -> anyhow::Result<()> {
     };
     let args = Arc::new(args);
     println!(
-        "humem load: {} robots x {} Hz for {} s against {} ({})",
+        "humem load: {} robots x {} Hz{} for {} s against {} ({})",
         args.robots,
         args.rate,
+        if args.in_phase { " in phase" } else { "" },
         args.duration,
         args.server.server,
         match (&args.images, args.descriptors) {
