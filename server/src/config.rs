@@ -298,9 +298,11 @@ pub struct QueryDefaults {
     /// perception models under full query load.
     pub scan_threads: usize,
     /// Scans that run at once, across all robots; the rest wait their
-    /// turn in arrival order. 0: one per scan thread. An exact pass
-    /// spreads over every scan thread, but a walk of a neighbour graph
-    /// runs on one, so on a large store most scans use one core each.
+    /// turn in arrival order. 0: one more than the scan threads. An exact
+    /// pass spreads over every scan thread, but a walk of a neighbour
+    /// graph runs on one, so on a large store most scans use one core
+    /// each, and one more keeps the cores busy while a scan waits (for
+    /// the index's lock, or for a core the store writer holds).
     pub concurrent_scans: usize,
     /// Longest a query may take from its arrival to its answer, in
     /// milliseconds; a query expected to take longer (or longer than its

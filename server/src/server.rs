@@ -134,8 +134,8 @@ async fn open(
         LatestWins::new(config.query.pending_per_client),
         QueryAdmission::new(
             match config.query.concurrent_scans {
-                // The scan pool is built above: its threads.
-                0 => rayon::current_num_threads(),
+                // The scan pool is built above: one more than its threads.
+                0 => rayon::current_num_threads() + 1,
                 n => n,
             },
             std::time::Duration::from_millis(config.query.max_wait_ms),

@@ -208,21 +208,8 @@ impl DescriptorMatrix {
     /// memory one after another. Panics if out of range.
     pub fn prefetch_row(&self, i: usize) {
         assert!(i < self.rows, "row {i} out of range");
-        #[cfg(target_arch = "x86_64")]
         if let Rows::Memory(data) = &self.data {
-            use std::arch::x86_64::{_mm_prefetch, _MM_HINT_T0};
-            // One prefetch per 64-byte line: 16 values.
-            for line in data[i * self.dim..(i + 1) * self.dim].chunks(16) {
-                #[allow(
-                    unsafe_code,
-                    reason = "_mm_prefetch is a #[target_feature(sse)] intrinsic; SSE is part of x86-64"
-                )]
-                // SAFETY: a prefetch is a hint: it reads nothing the program
-                // sees and cannot fault, and the address is in `data`.
-                unsafe {
-                    _mm_prefetch::<_MM_HINT_T0>(line.as_ptr().cast())
-                };
-            }
+            crate::numeric::prefetch(&data[i * self.dim..(i + 1) * self.dim]);
         }
     }
 

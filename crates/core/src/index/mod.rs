@@ -48,7 +48,7 @@ mod tests;
 pub use eligible::{RowEligibility, PARTITION_MAX_SHARE};
 pub use grouping::{RowGrouping, GROUP_TAIL_ROWS, GROUP_WINDOW_ROWS, REGROUP_DISPLACED_ROWS};
 pub use map_graphs::map_graph_name;
-pub use neighbours::{graph_key, GraphAdditions};
+pub use neighbours::{graph_key, GraphAdditions, PARALLEL_BACKLOG};
 pub use places::OPERATING_POINT_REFRESH_S;
 pub use restore::{IndexRestore, RestoreError};
 pub use table::{Index, MapKey, RowMeta};

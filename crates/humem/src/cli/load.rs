@@ -5,7 +5,8 @@
 //! keyframe and asks a loop-closure query about it, without waiting for the
 //! previous answers (as ORB-SLAM3's asynchronous client does), so the
 //! server's latest-wins scheduling and ingest push-back are exercised for
-//! real. Keyframes carry images from a folder or synthetic features. The
+//! real. The robots' ticks are spread over the period, as independent
+//! robots' are (`--in-phase` sends a burst instead). Keyframes carry images from a folder or synthetic features. The
 //! report gives the achieved rate, latency percentiles (HdrHistogram),
 //! superseded queries and errors by gRPC code.
 

@@ -49,11 +49,11 @@ pub(super) struct Published {
 pub(super) const PUBLISH_BACKLOG: usize = 2;
 
 /// Waiting keyframe entries (the store's graph's and the maps') added at
-/// a time, on every core: about a millisecond of a core each at a million
-/// keyframes, so a few tens of milliseconds, the longest a group of
-/// writes waits behind them. (A quarter of it answered a fleet's inserts
-/// no sooner at a million keyframes: the groups' own waits dominate.)
-const GRAPH_BATCH: usize = 64;
+/// a time: about a millisecond of a core each at a million keyframes, and
+/// a fleet's steady inserts are added on this thread alone
+/// ([`humem_core::index::PARALLEL_BACKLOG`]), so a batch takes a few tens
+/// of milliseconds, the longest a group of writes waits behind it.
+const GRAPH_BATCH: usize = 16;
 
 /// The second stage of the writer: takes each flushed group, in order,
 /// into the in-memory index under its write lock, and only then answers
