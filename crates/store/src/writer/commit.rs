@@ -17,7 +17,7 @@ use humem_core::observe::SharedObserver;
 use sled::transaction::{ConflictableTransactionError, TransactionError, Transactional};
 use tokio::sync::mpsc;
 
-use super::publisher::{Answer, Published, Publisher, PUBLISH_BACKLOG};
+use super::publisher::{Answer, Published, Publisher, PUBLISH_BACKLOG, SLOW_MS};
 use super::queue::{Job, WriterHandle, QUEUE};
 use super::staging::{self, IndexChange, Staged};
 use super::trees::Trees;
@@ -240,7 +240,13 @@ impl Writer {
     /// Flushes a staged group and hands it to the publisher, or rolls it
     /// back and fails its callers.
     fn flush_group(&mut self, changes: Vec<IndexChange>, answers: Vec<Answer>, journaled: u64) {
-        if let Err(e) = self.flush() {
+        let started = std::time::Instant::now();
+        let flushed = self.flush();
+        let flush_ms = started.elapsed().as_secs_f64() * 1e3;
+        if flush_ms >= SLOW_MS {
+            tracing::debug!(flush_ms, changes = changes.len(), "slow flush of a group");
+        }
+        if let Err(e) = flushed {
             tracing::error!(error = %e, "flushing the store failed; its group is rolled back");
             self.roll_back();
             for answer in answers {
@@ -265,8 +271,13 @@ impl Writer {
             sequence: self.sequence,
             journaled,
         };
+        let started = std::time::Instant::now();
         if self.publisher.send(group).is_err() {
             tracing::error!("the index publisher is gone");
+        }
+        let handed_ms = started.elapsed().as_secs_f64() * 1e3;
+        if handed_ms >= SLOW_MS {
+            tracing::debug!(handed_ms, "waited for the publisher to take a group");
         }
     }
 

@@ -43,6 +43,11 @@ pub(super) struct Published {
     pub(super) journaled: u64,
 }
 
+/// Steps of a write slower than this, in milliseconds, are logged at
+/// debug level (`RUST_LOG=humem_store=debug`): what an insert's tail
+/// latency is made of.
+pub(super) const SLOW_MS: f64 = 50.0;
+
 /// Groups flushed but not yet published, at most: the writer flushes the
 /// next group while the publisher waits for the index, and blocks when
 /// this many are behind, so memory stays bounded.
@@ -172,7 +177,13 @@ impl Publisher {
         if index.neighbour_graph_waiting() == 0 {
             return None;
         }
-        Some(index.add_waiting_to_graph(GRAPH_BATCH))
+        let started = std::time::Instant::now();
+        let added = index.add_waiting_to_graph(GRAPH_BATCH);
+        let added_ms = started.elapsed().as_secs_f64() * 1e3;
+        if added_ms >= SLOW_MS {
+            tracing::debug!(added_ms, "slow batch of graph additions");
+        }
+        Some(added)
     }
 
     /// Takes `group` into the index under one write lock, crossing off
@@ -185,8 +196,13 @@ impl Publisher {
             sequence,
             journaled,
         } = group;
+        let started = std::time::Instant::now();
         let (store_keyframes, store_verdicts) = {
             let mut index = self.index.write();
+            let locked_ms = started.elapsed().as_secs_f64() * 1e3;
+            if locked_ms >= SLOW_MS {
+                tracing::debug!(locked_ms, "waited for the index's write lock");
+            }
             if let Some(added) = added {
                 index.graph_added(added);
             }
