@@ -187,14 +187,6 @@ impl CodeMatrix {
         self.rows.clear();
     }
 
-    /// Asks the CPU to start loading row `i`'s codes into its caches
-    /// ([`DescriptorMatrix::prefetch_row`](super::matrix::DescriptorMatrix::prefetch_row)
-    /// for the f32 rows). Panics if out of range.
-    pub fn prefetch_row(&self, i: usize) {
-        assert!(i < self.rows.len(), "row {i} out of range");
-        crate::numeric::prefetch(&self.codes[i * self.stride..(i + 1) * self.stride]);
-    }
-
     /// Code dot products of row `i` with the queries, as bounds on the
     /// exact f32 dot products: `(estimate, error bound)` per query, with
     /// `|q·x − estimate| ≤ bound` for `x` the f32 row.

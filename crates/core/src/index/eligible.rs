@@ -131,10 +131,7 @@ impl RowFilter for RowEligibility<'_> {
     fn partition(&self) -> Option<&[usize]> {
         let tracks = self.tracks.as_ref()?;
         let rows = self.partition.get_or_init(|| {
-            let mut rows: Vec<usize> = tracks
-                .iter()
-                .flat_map(|track| track.values().copied())
-                .collect();
+            let mut rows: Vec<usize> = track_rows(tracks).collect();
             rows.sort_unstable();
             rows
         });
@@ -147,10 +144,7 @@ impl RowFilter for RowEligibility<'_> {
         };
         match self.partition.get() {
             Some(rows) => rows.iter().for_each(|&row| f(row)),
-            None => tracks
-                .iter()
-                .flat_map(|track| track.values())
-                .for_each(|&row| f(row)),
+            None => track_rows(tracks).for_each(f),
         }
         true
     }
@@ -162,4 +156,9 @@ impl RowFilter for RowEligibility<'_> {
     fn group(&self) -> Option<RowGroup> {
         self.group
     }
+}
+
+/// Every row of `tracks`, track by track.
+fn track_rows<'t>(tracks: &'t [&BTreeMap<u64, usize>]) -> impl Iterator<Item = usize> + 't {
+    tracks.iter().flat_map(|track| track.values().copied())
 }

@@ -276,30 +276,9 @@ fn estimated_median<M: KeyframeMemory + ?Sized>(
         return 0.0;
     }
     let steps = side.steps();
-    let matrix = memory.descriptors().codes();
-    // The rows are scattered over the store: each one's codes and its
-    // chain's start loading a few rows ahead, or every row waits for
-    // memory in turn (a fleet server spent a sixth of its time here).
-    let prefetch = |row: usize| {
-        let mut c = row;
-        for _ in 0..steps {
-            matrix.prefetch_row(c);
-            match memory.predecessor(c) {
-                Some(p) if p < matrix.len() => c = p,
-                _ => break,
-            }
-        }
-    };
-    rows.iter()
-        .take(PREFETCH_RUNS_AHEAD)
-        .for_each(|&row| prefetch(row));
     let mut scores: Vec<f32> = rows
         .iter()
-        .enumerate()
-        .map(|(i, &row)| {
-            if let Some(&ahead) = rows.get(i + PREFETCH_RUNS_AHEAD) {
-                prefetch(ahead);
-            }
+        .map(|&row| {
             temporal_hit(params, memory, steps, row, |c, j| {
                 (
                     side.pair_estimate(memory, codes, kernel, c, j),
