@@ -175,6 +175,79 @@ fn a_robots_own_map_is_a_partition_and_the_whole_fleet_is_not() {
         .is_none());
 }
 
+#[test]
+fn a_partitions_tagged_rows_are_the_same_from_its_maps_sampled_subsets() {
+    let mut index = Index::new(6);
+    for robot in 0..3 {
+        for id in 0..3_000 {
+            let features = Features {
+                descriptor: unit_descriptor(robot, id),
+                ..Features::default()
+            };
+            index.upsert(keyframe(robot, 0, id % 2, id, features));
+        }
+    }
+    // Erasures fill holes with other rows, and moves change maps.
+    for id in (0..3_000).step_by(7) {
+        index.remove(&KeyframeKey {
+            robot_id: "r1".into(),
+            session_id: "s0".into(),
+            keyframe_id: id,
+        });
+    }
+    for id in (1..3_000).step_by(11) {
+        let key = KeyframeKey {
+            robot_id: "r1".into(),
+            session_id: "s0".into(),
+            keyframe_id: id,
+        };
+        index.update_pose(&key, Pose::default(), Some(0));
+    }
+    let context = |scope: Scope| QueryContext {
+        session: SessionKey {
+            robot_id: "r1".into(),
+            session_id: "s0".into(),
+        },
+        keyframe_id: None,
+        frame_id: 0,
+        map_id: 1,
+        min_frame_gap: 0,
+        scope,
+        readable_robots: Some(vec!["r1".into()]),
+    };
+    let tag = |row: usize| crate::vpr::memory::KeyframeMemory::sample_tag(&index, row);
+    for scope in [Scope::SameMap, Scope::OtherMaps, Scope::AllMaps] {
+        for bits in 0..8 {
+            let mask = (1u32 << bits) - 1;
+            let mut walked = Vec::new();
+            let partitioned = index
+                .eligibility(&context(scope.clone()))
+                .for_each_tagged_in_partition(mask, &tag, &mut |row| walked.push(row));
+            assert!(partitioned, "{scope:?}");
+            walked.sort_unstable();
+            let gathered = index.eligibility(&context(scope.clone()));
+            let expected: Vec<usize> = gathered
+                .partition()
+                .unwrap()
+                .iter()
+                .copied()
+                .filter(|&row| tag(row) & mask == 0)
+                .collect();
+            assert!(bits < 6 || !expected.is_empty());
+            assert_eq!(walked, expected, "{scope:?}, mask {mask}");
+        }
+    }
+}
+
+/// A unit descriptor, different for each robot and keyframe.
+fn unit_descriptor(robot: usize, id: u64) -> Vec<f32> {
+    let mut descriptor = [0.1f32; 6];
+    descriptor[robot] = 1.0;
+    descriptor[5] = (id % 13) as f32 / 13.0;
+    let norm = descriptor.iter().map(|x| x * x).sum::<f32>().sqrt();
+    descriptor.iter().map(|x| x / norm).collect()
+}
+
 /// The index of `rows`, keeping a neighbour graph when `graph` is given:
 /// the last `graph` rows stored wait to enter it (as the store's writer
 /// leaves the newest keyframes until it adds them).

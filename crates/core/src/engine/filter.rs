@@ -29,13 +29,20 @@ pub trait RowFilter: Sync {
         None
     }
 
-    /// Calls `f` with every row of the [partition](RowFilter::partition),
-    /// in no particular order and without gathering them where the filter
-    /// can avoid it; false (and `f` never called) where it names none.
-    fn for_each_in_partition(&self, f: &mut dyn FnMut(usize)) -> bool {
+    /// Calls `f` with every row of the [partition](RowFilter::partition)
+    /// whose sample tag (`tag(row)`) has no bit of `mask` set, in no
+    /// particular order and without gathering the partition where the
+    /// filter can avoid it (the index keeps each large map's sampled rows
+    /// apart); false (and `f` never called) where it names none.
+    fn for_each_tagged_in_partition(
+        &self,
+        mask: u32,
+        tag: &dyn Fn(usize) -> u32,
+        f: &mut dyn FnMut(usize),
+    ) -> bool {
         match self.partition() {
             Some(rows) => {
-                rows.iter().for_each(|&row| f(row));
+                for_each_tagged(rows.iter().copied(), mask, tag, f);
                 true
             }
             None => false,
@@ -66,4 +73,15 @@ impl<F: Fn(usize) -> bool + Sync + ?Sized> RowFilter for F {
     fn test(&self, row: usize) -> bool {
         self(row)
     }
+}
+
+/// Calls `f` with each of `rows` whose tag (`tag(row)`) has no bit of
+/// `mask` set.
+pub fn for_each_tagged(
+    rows: impl Iterator<Item = usize>,
+    mask: u32,
+    tag: &dyn Fn(usize) -> u32,
+    f: &mut dyn FnMut(usize),
+) {
+    rows.filter(|&row| tag(row) & mask == 0).for_each(f);
 }

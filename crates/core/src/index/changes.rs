@@ -13,6 +13,7 @@ use crate::row_ids::RowIds;
 use crate::vpr::calibration::sample_tag;
 use crate::vpr::text::normalize;
 
+use super::eligible::SAMPLED_MASK;
 use super::table::{Index, RowMeta, NO_ROW};
 
 impl Index {
@@ -158,6 +159,10 @@ impl Index {
         let id = self.rows[row].key.keyframe_id;
         self.forget_spacing(&map);
         self.forget_path_from(&map, id);
+        let tag = self.tags[row];
+        if tag & SAMPLED_MASK == 0 {
+            self.sampled.entry(map.clone()).or_default().insert(id, tag);
+        }
         let track = self.tracks.entry(map).or_default();
         track.insert(id, row);
         let prev = track.range(..id).next_back().map(|(_, &r)| r);
@@ -181,6 +186,12 @@ impl Index {
         let next = track.range(id + 1..).next().map(|(_, &r)| r);
         if track.is_empty() {
             self.tracks.remove(&map);
+        }
+        if let Some(sampled) = self.sampled.get_mut(&map) {
+            sampled.remove(&id);
+            if sampled.is_empty() {
+                self.sampled.remove(&map);
+            }
         }
         self.forget_path_from(&map, id);
         if let Some(next) = next {

@@ -10,7 +10,7 @@
 use std::collections::BTreeMap;
 use std::sync::OnceLock;
 
-use crate::engine::filter::{RowFilter, RowGroup};
+use crate::engine::filter::{for_each_tagged, RowFilter, RowGroup};
 use crate::row_ids::{Eligibility, RowIds};
 use crate::vpr::eligibility::QueryContext;
 
@@ -44,20 +44,24 @@ impl Index {
     fn admitted_tracks(
         &self,
         rule: &Eligibility,
-    ) -> (Option<Vec<&BTreeMap<u64, usize>>>, usize, Option<RowGroup>) {
-        let admitted: Vec<&BTreeMap<u64, usize>> = self
+    ) -> (Option<Vec<AdmittedMap<'_>>>, usize, Option<RowGroup>) {
+        let admitted: Vec<AdmittedMap<'_>> = self
             .tracks
-            .values()
-            .filter(|track| {
+            .iter()
+            .filter(|(_, track)| {
                 track.values().next().is_some_and(|&row| {
                     let ids = &self.ids[row];
                     rule.admits_map(ids.robot, ids.session, ids.map_id)
                 })
             })
+            .map(|(map, track)| AdmittedMap {
+                track,
+                sampled: self.sampled.get(map),
+            })
             .collect();
-        let count: usize = admitted.iter().map(|track| track.len()).sum();
+        let count: usize = admitted.iter().map(|map| map.track.len()).sum();
         let group = match admitted.as_slice() {
-            [track] => track.values().next().map(|&row| self.row_group(row)),
+            [map] => map.track.values().next().map(|&row| self.row_group(row)),
             _ => None,
         };
         if count as f64 > PARTITION_MAX_SHARE * self.len() as f64 {
@@ -80,14 +84,30 @@ impl Index {
 /// (`humem bench scan`, the scoped case).
 pub const PARTITION_MAX_SHARE: f64 = 0.5;
 
+/// The low bits of a sample tag that must be zero for its keyframe to be
+/// kept in its map's sampled subset ([`Index`]'s `sampled`): one keyframe
+/// in eight. A null sample whose mask covers these bits (a map of more
+/// than 8 192 keyframes, [`NULL_SAMPLE_CAP`](crate::vpr::calibration::NULL_SAMPLE_CAP)
+/// times 4) is drawn from the subset: walking a 30 000-keyframe map's
+/// whole track for every loop query cost a fleet server a tenth of its
+/// time.
+pub const SAMPLED_MASK: u32 = 7;
+
+/// One map a query's rule admits: its track, and its sampled subset.
+#[derive(Debug, Clone, Copy)]
+struct AdmittedMap<'a> {
+    track: &'a BTreeMap<u64, usize>,
+    sampled: Option<&'a BTreeMap<u64, u32>>,
+}
+
 /// A query's eligibility rule bound to an index's rows, with the rows it
 /// can admit when they are a small part of the store.
 #[derive(Debug, Clone)]
 pub struct RowEligibility<'a> {
     rule: Eligibility,
     ids: &'a [RowIds],
-    /// The admitted maps' tracks, where they are the partition.
-    tracks: Option<Vec<&'a BTreeMap<u64, usize>>>,
+    /// The admitted maps, where their tracks are the partition.
+    tracks: Option<Vec<AdmittedMap<'a>>>,
     /// Their rows, sorted, gathered the first time a scan asks.
     partition: OnceLock<Vec<usize>>,
     /// Rows of the maps the rule admits; None once the query asked for an
@@ -138,13 +158,30 @@ impl RowFilter for RowEligibility<'_> {
         Some(rows)
     }
 
-    fn for_each_in_partition(&self, f: &mut dyn FnMut(usize)) -> bool {
-        let Some(tracks) = &self.tracks else {
+    fn for_each_tagged_in_partition(
+        &self,
+        mask: u32,
+        tag: &dyn Fn(usize) -> u32,
+        f: &mut dyn FnMut(usize),
+    ) -> bool {
+        let Some(maps) = &self.tracks else {
             return false;
         };
-        match self.partition.get() {
-            Some(rows) => rows.iter().for_each(|&row| f(row)),
-            None => track_rows(tracks).for_each(f),
+        if let Some(rows) = self.partition.get() {
+            for_each_tagged(rows.iter().copied(), mask, tag, f);
+            return true;
+        }
+        for map in maps {
+            match map.sampled {
+                // Every row the mask keeps is in the subset.
+                Some(sampled) if mask & SAMPLED_MASK == SAMPLED_MASK => sampled
+                    .iter()
+                    .filter(|&(_, &t)| t & mask == 0)
+                    .for_each(|(id, _)| f(map.track[id])),
+                // A map whose subset is empty has none either.
+                None if mask & SAMPLED_MASK == SAMPLED_MASK => {}
+                _ => for_each_tagged(map.track.values().copied(), mask, tag, f),
+            }
         }
         true
     }
@@ -158,7 +195,7 @@ impl RowFilter for RowEligibility<'_> {
     }
 }
 
-/// Every row of `tracks`, track by track.
-fn track_rows<'t>(tracks: &'t [&BTreeMap<u64, usize>]) -> impl Iterator<Item = usize> + 't {
-    tracks.iter().flat_map(|track| track.values().copied())
+/// Every row of `maps`, track by track.
+fn track_rows<'t>(maps: &'t [AdmittedMap<'_>]) -> impl Iterator<Item = usize> + 't {
+    maps.iter().flat_map(|map| map.track.values().copied())
 }

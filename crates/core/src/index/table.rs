@@ -92,6 +92,10 @@ pub struct Index {
     pub(super) by_key: HashMap<KeyframeKey, usize>,
     /// Keyframe id → row, per map: the temporal tracks.
     pub(super) tracks: HashMap<MapKey, BTreeMap<u64, usize>>,
+    /// Keyframe id → sample tag, per map, of the keyframes whose tag
+    /// [`SAMPLED_MASK`](super::eligible::SAMPLED_MASK) keeps: a large
+    /// map's null sample is drawn from these instead of its whole track.
+    pub(super) sampled: HashMap<MapKey, BTreeMap<u64, u32>>,
     /// Number of keyframes each normalised OCR string appears in.
     pub(super) text_df: HashMap<String, u32>,
     /// SLAM's verdicts on pairs of stored keyframes; a verdict goes with
@@ -233,6 +237,7 @@ impl Index {
             interner: Interner::default(),
             by_key: HashMap::new(),
             tracks: HashMap::new(),
+            sampled: HashMap::new(),
             text_df: HashMap::new(),
             verdicts: VerdictBook::new(),
             operating_point: Mutex::new(None),

@@ -1,6 +1,8 @@
 //! The index's invariants, checked against a from-scratch recomputation
 //! after inserts, replacements, erasures and moves.
 
+use std::collections::{BTreeMap, HashMap};
+
 use super::table::{Index, MapKey};
 use crate::keyframe::{Features, TextObservation};
 use crate::keyframe::{KeyframeKey, ObjectObservation, Pose, SemanticKeyframe, SessionKey};
@@ -89,6 +91,18 @@ pub(super) fn check(index: &Index) {
     }
     let tracked: usize = index.tracks.values().map(|t| t.len()).sum();
     assert_eq!(tracked, index.rows.len());
+    // Each map's sampled subset: exactly its keyframes whose tag the
+    // subset's mask keeps, with their tags.
+    let mut sampled: HashMap<MapKey, BTreeMap<u64, u32>> = HashMap::new();
+    for (row, meta) in index.rows.iter().enumerate() {
+        if index.tags[row] & super::eligible::SAMPLED_MASK == 0 {
+            sampled
+                .entry(meta.map_key())
+                .or_default()
+                .insert(meta.key.keyframe_id, index.tags[row]);
+        }
+    }
+    assert_eq!(index.sampled, sampled);
 }
 
 #[test]

@@ -33,11 +33,13 @@
 //! more (and neither `vpr.exact` nor the query asks for an exact pass),
 //! the graph proposes the `approximate_candidates` eligible rows nearest
 //! to the current observation, the scopes and access rules applied while
-//! it is walked; each is scored exactly, temporal context included, and
-//! the best `K` kept. Its cost grows with the logarithm of the store, not
-//! the store; what it can get wrong is only a row the graph did not
-//! propose. Its null model is approximate too, and cheap: a sample of
-//! 1–2 thousand eligible rows chosen by their tags as the full passes'
+//! it is walked; the best `K` of them by their exact scores, temporal
+//! context included, are kept (scoring exactly only the candidates whose
+//! code bounds reach the K-th highest lower bound, as the compressed pass
+//! does: the same best K from a fraction of the f32 rows). Its cost grows
+//! with the logarithm of the store, not the store; what it can get wrong
+//! is only a row the graph did not propose. Its null model is approximate
+//! too, and cheap: a sample of 1–2 thousand eligible rows chosen by their tags as the full passes'
 //! (the tag a multiple of a power of two, a mask over the tags), each
 //! scored from the codes' estimates alone; the eligible count is the rows
 //! of the admitted maps. Bounding the sample and rescoring it exactly, as
@@ -193,8 +195,9 @@ fn approximate_for<E: RowFilter + ?Sized>(
 }
 
 /// The approximate pass: the neighbour graph's `approximate_candidates`
-/// eligible rows nearest to the current observation, each scored exactly
-/// (with its temporal context), the best `top_k` kept; the null model from
+/// eligible rows nearest to the current observation, the best `top_k` by
+/// their exact scores (with temporal context) kept, only those whose code
+/// bounds leave them a chance scored exactly; the null model from
 /// the codes over a tag sample ([`approximate_sample`]), with `admitted`
 /// standing for the eligible count. None where the memory keeps no such
 /// graph (or it is not ready): the caller makes a full pass.
@@ -213,10 +216,16 @@ where
     let count = params.approximate_candidates.max(params.top_k);
     let keep = |row: usize| eligible.test(row);
     let candidates = memory.nearest(side.descriptors[0], count, group, &keep)?;
-    let mut hits = side.exact_hits(params, memory, &candidates);
-    top_k(&mut hits, params.top_k);
     let kernel = CodeKernel::detect();
     let codes = side.codes(memory, kernel);
+    let bounds = CodeBounds {
+        side,
+        codes: &codes,
+        kernel,
+    };
+    let open = bounds.open_candidates(params, memory, &candidates);
+    let mut hits = side.exact_hits(params, memory, &open);
+    top_k(&mut hits, params.top_k);
     let sample = approximate_sample(memory, eligible, admitted);
     let location = estimated_median(params, side, memory, &codes, kernel, &sample);
     Some(ScalScan {
@@ -247,8 +256,9 @@ where
     // The same rows either way (the partition only leaves out rows the
     // test refuses), perhaps in another order, which the median ignores.
     let mut rows = Vec::new();
-    let partitioned = eligible.for_each_in_partition(&mut |row| {
-        if memory.sample_tag(row) & mask == 0 && eligible.test(row) {
+    let tag = |row: usize| memory.sample_tag(row);
+    let partitioned = eligible.for_each_tagged_in_partition(mask, &tag, &mut |row| {
+        if eligible.test(row) {
             rows.push(row);
         }
     });
@@ -484,6 +494,65 @@ impl CodeBounds<'_, '_> {
         upper
     }
 
+    /// Lower and upper bounds on `row`'s `S_s` (temporal context and
+    /// scene modulation included) from the codes alone.
+    fn score_bounds<M: KeyframeMemory + ?Sized>(
+        &self,
+        params: &VprParams,
+        memory: &M,
+        row: usize,
+    ) -> (f32, f32) {
+        let side = self.side;
+        // Both walks visit the same chain row at each step: its bounds
+        // come from one code product, kept by step.
+        let seen: [Cell<Option<(f32, f32)>>; STEPS] = Default::default();
+        let bound = |c: usize, j: usize, upper: bool| {
+            let (lo, hi) = seen[j].get().unwrap_or_else(|| {
+                let pair = side.pair_bounds(memory, self.codes, self.kernel, c, j);
+                seen[j].set(Some(pair));
+                pair
+            });
+            let compat = side.scenes[j].compatibility(memory.scene(c));
+            (if upper { hi } else { lo }, compat)
+        };
+        let steps = side.steps();
+        let lo = temporal_hit(params, memory, steps, row, |c, j| bound(c, j, false));
+        let hi = temporal_hit(params, memory, steps, row, |c, j| bound(c, j, true));
+        (lo.score, hi.score)
+    }
+
+    /// The neighbour graph's candidates that can be among the best `K`:
+    /// with every candidate's score bounded from the codes, the K-th
+    /// highest lower bound is a floor that each of the best K reaches (K
+    /// candidates score at least their lower bounds), so only candidates
+    /// whose upper bound reaches it are kept. Scoring those exactly gives
+    /// the same best K as scoring every candidate, bit for bit, and reads
+    /// a fraction of the f32 rows (each a system call where the rows are
+    /// in a file).
+    fn open_candidates<M: KeyframeMemory + ?Sized>(
+        &self,
+        params: &VprParams,
+        memory: &M,
+        candidates: &[usize],
+    ) -> Vec<usize> {
+        let k = params.top_k;
+        if candidates.len() <= k || k == 0 {
+            return candidates.to_vec();
+        }
+        let bounds: Vec<(f32, f32)> = candidates
+            .iter()
+            .map(|&row| self.score_bounds(params, memory, row))
+            .collect();
+        let mut lows: Vec<f32> = bounds.iter().map(|b| b.0).collect();
+        let (_, &mut floor, _) = lows.select_nth_unstable_by(k - 1, |a, b| b.total_cmp(a));
+        candidates
+            .iter()
+            .zip(&bounds)
+            .filter(|(_, &(_, hi))| hi >= floor)
+            .map(|(&row, _)| row)
+            .collect()
+    }
+
     /// Per block, a bound on `S_s` without the scene modulation (which
     /// only lowers it), reading a chain row's bounds wherever in the visit
     /// it is: after erasures and replacements a track's rows are scattered
@@ -636,26 +705,14 @@ fn sample_median<M: KeyframeMemory + ?Sized>(
     if rows.is_empty() {
         return 0.0;
     }
-    let steps = side.steps();
+    let code_bounds = CodeBounds {
+        side,
+        codes,
+        kernel,
+    };
     let bounds: Vec<(f32, f32)> = rows
         .par_iter()
-        .map(|&row| {
-            // Both walks visit the same chain row at each step: its bounds
-            // come from one code product, kept by step.
-            let seen: [Cell<Option<(f32, f32)>>; STEPS] = Default::default();
-            let bound = |c: usize, j: usize, upper: bool| {
-                let (lo, hi) = seen[j].get().unwrap_or_else(|| {
-                    let pair = side.pair_bounds(memory, codes, kernel, c, j);
-                    seen[j].set(Some(pair));
-                    pair
-                });
-                let compat = side.scenes[j].compatibility(memory.scene(c));
-                (if upper { hi } else { lo }, compat)
-            };
-            let lo = temporal_hit(params, memory, steps, row, |c, j| bound(c, j, false));
-            let hi = temporal_hit(params, memory, steps, row, |c, j| bound(c, j, true));
-            (lo.score, hi.score)
-        })
+        .map(|&row| code_bounds.score_bounds(params, memory, row))
         .collect();
     let m = rows.len() / 2;
     let nth = |mut v: Vec<f32>| {
@@ -1023,6 +1080,54 @@ mod tests {
         }
     }
 
+    /// The best `k` of `candidates` scored exactly: every candidate, and
+    /// only those [`CodeBounds::open_candidates`] keeps (how many it kept).
+    fn best_of_candidates(
+        params: &VprParams,
+        history: &[Features],
+        m: &VecMemory,
+        candidates: &[usize],
+    ) -> (Vec<ScalHit>, Vec<ScalHit>, usize) {
+        let history: Vec<&Features> = history.iter().collect();
+        let side = QuerySide::new(params, &history);
+        let kernel = CodeKernel::detect();
+        let codes = side.codes(m, kernel);
+        let bounds = CodeBounds {
+            side: &side,
+            codes: &codes,
+            kernel,
+        };
+        let mut every = side.exact_hits(params, m, candidates);
+        top_k(&mut every, params.top_k);
+        let open = bounds.open_candidates(params, m, candidates);
+        let mut kept = side.exact_hits(params, m, &open);
+        top_k(&mut kept, params.top_k);
+        (every, kept, open.len())
+    }
+
+    #[test]
+    fn the_candidates_bounds_score_few_and_keep_the_best_k() {
+        // Tight clusters, as a graph's candidates around a revisited place.
+        let m = clustered(2_000, 64, 11);
+        let params = VprParams::default();
+        let history: Vec<Features> = [5, 4, 3]
+            .iter()
+            .map(|&row| Features {
+                descriptor: m.descriptors().row(row).to_vec(),
+                ..Features::default()
+            })
+            .collect();
+        // Candidates from every cluster, a few dozen from the query's.
+        let candidates: Vec<usize> = (0..2_000).step_by(7).take(256).collect();
+        let (every, kept, scored) = best_of_candidates(&params, &history, &m, &candidates);
+        assert_eq!(kept, every);
+        assert_eq!(kept.len(), params.top_k);
+        assert!(
+            scored < candidates.len() / 2,
+            "{scored} of 256 scored exactly"
+        );
+    }
+
     proptest! {
         #[test]
         fn a_partition_never_changes_the_answer(
@@ -1038,6 +1143,28 @@ mod tests {
             let params = VprParams { top_k: k, ..VprParams::default() };
             let rows = (0..m.descriptors().len()).filter(|&r| member[r]).collect();
             check_partition(&m, &history, &params, rows);
+        }
+
+        #[test]
+        fn the_candidates_bounds_never_change_the_best_k(
+            m in memory_strategy(6, 80),
+            history in prop::collection::vec((unit_vector(6), scene_strategy()), 1..4),
+            member in prop::collection::vec(any::<bool>(), 80),
+            k in 1usize..30,
+            average in any::<bool>(),
+        ) {
+            let history: Vec<Features> = history
+                .into_iter()
+                .map(|(descriptor, scene)| Features { descriptor, scene, ..Features::default() })
+                .collect();
+            let params = VprParams {
+                top_k: k,
+                temporal: if average { TemporalMode::Average } else { TemporalMode::Support },
+                ..VprParams::default()
+            };
+            let candidates: Vec<usize> = (0..m.descriptors().len()).filter(|&r| member[r]).collect();
+            let (every, kept, _) = best_of_candidates(&params, &history, &m, &candidates);
+            prop_assert_eq!(kept, every);
         }
 
         #[test]
