@@ -108,11 +108,11 @@ impl Quotas {
     /// its quota is refused before its image is perceived. The exact check
     /// is the store writer's, as the insert is applied
     /// ([`humem_store::Mutation::InsertWithin`]).
-    pub fn store_size(&self, store: &Store, keys: &[&KeyframeKey]) -> Result<(), Status> {
+    pub async fn store_size(&self, store: &Store, keys: &[&KeyframeKey]) -> Result<(), Status> {
         if self.max_keyframes == 0 {
             return Ok(());
         }
-        let index = store.index();
+        let index = store.index_async().await;
         let mut added: std::collections::BTreeMap<&str, u64> = Default::default();
         for key in keys {
             if index.row_of(key).is_none() {

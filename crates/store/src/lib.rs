@@ -79,6 +79,9 @@ pub use options::{StoreOptions, DEFAULT_CACHE_BYTES, DEFAULT_SNAPSHOT_EVERY};
 pub use placement::FileRule;
 pub use recorded::{recorded_dim, recorded_log, RecordedLog};
 
+/// How long [`Store::index_async`] sleeps before it tries the index again.
+const INDEX_RETRY: std::time::Duration = std::time::Duration::from_millis(1);
+
 /// The store: sled plus the in-memory index, shared by the service.
 #[derive(Clone)]
 pub struct Store {
@@ -171,6 +174,23 @@ impl Store {
     /// Read access to the index, for queries. Hold it briefly.
     pub fn index(&self) -> parking_lot::RwLockReadGuard<'_, Index> {
         self.index.read()
+    }
+
+    /// Read access to the index from async code. While the writer waits
+    /// for the index (it waits for the scans in progress to end, tens of
+    /// milliseconds), [`Store::index`] blocks its thread, and a runtime
+    /// whose few worker threads block so stops serving every request
+    /// meanwhile, answers and inserts alike (a fleet server stalled for
+    /// seconds after a restart, when its first scans read cold pages).
+    /// This one sleeps a millisecond at a time instead. Hold it briefly,
+    /// never across an `.await`.
+    pub async fn index_async(&self) -> parking_lot::RwLockReadGuard<'_, Index> {
+        loop {
+            if let Some(index) = self.index.try_read() {
+                return index;
+            }
+            tokio::time::sleep(INDEX_RETRY).await;
+        }
     }
 
     /// Waits until no stored keyframe waits to enter the neighbour graph

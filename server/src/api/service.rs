@@ -73,7 +73,8 @@ impl PlaceRecognition for PlaceRecognitionService {
         )?;
         self.quotas.inserts(&pending.key.robot_id, 1)?;
         self.quotas
-            .store_size(self.pipeline.store(), &[&pending.key])?;
+            .store_size(self.pipeline.store(), &[&pending.key])
+            .await?;
         let span = tracing::Span::current();
         span.record("robot", pending.key.robot_id.as_str());
         span.record("session", pending.key.session_id.as_str());
@@ -113,7 +114,7 @@ impl PlaceRecognition for PlaceRecognitionService {
             self.quotas.inserts(robot, n)?;
         }
         let keys: Vec<_> = pending.iter().map(|k| &k.key).collect();
-        self.quotas.store_size(self.pipeline.store(), &keys)?;
+        self.quotas.store_size(self.pipeline.store(), &keys).await?;
         tracing::Span::current().record("keyframes", pending.len());
         let stored = self.pipeline.insert_batch(pending).await?;
         Ok(Response::new(proto::InsertBatchResponse {
@@ -305,7 +306,7 @@ impl PlaceRecognition for PlaceRecognitionService {
                 .is_none_or(|r| r.iter().any(|x| x == robot))
         };
         let (keyframes, descriptor_dim, maps, verdicts, point, graph) = {
-            let index = self.pipeline.store().index();
+            let index = self.pipeline.store().index_async().await;
             let graph = index
                 .neighbour_graph()
                 .filter(|_| readable.is_none())

@@ -355,9 +355,9 @@ fn code_name(code: tonic::Code) -> &'static str {
 pub const MAX_MAP_SERIES: usize = 200;
 
 /// The text exposition, with the store's gauges brought up to date.
-pub fn render(store: &Store) -> String {
+pub async fn render(store: &Store) -> String {
     KEYFRAMES.reset();
-    let mut maps = store.index().map_counts();
+    let mut maps = store.index_async().await.map_counts();
     maps.sort_by(|a, b| b.1.cmp(&a.1).then_with(|| a.0.cmp(&b.0)));
     let others: usize = maps.iter().skip(MAX_MAP_SERIES).map(|(_, n)| n).sum();
     for (map, count) in maps.iter().take(MAX_MAP_SERIES) {
@@ -497,7 +497,7 @@ pub async fn serve(
                             axum::http::header::CONTENT_TYPE,
                             "text/plain; version=0.0.4",
                         )],
-                        render(&store),
+                        render(&store).await,
                     )
                 }
             }),

@@ -173,13 +173,13 @@ impl Pipeline {
     /// has erased ([`humem_core::index::Index::session_erasures`]): an
     /// erasure through any replica starts a new stream, so a read made
     /// before it is never carried over to the keyframes after it.
-    fn camera_stream(&self, robot_id: &str, session_id: &str) -> Option<String> {
+    async fn camera_stream(&self, robot_id: &str, session_id: &str) -> Option<String> {
         let name = stream_name(robot_id, session_id)?;
         let session = SessionKey {
             robot_id: robot_id.into(),
             session_id: session_id.into(),
         };
-        let erasures = self.store.index().session_erasures(&session);
+        let erasures = self.store.index_async().await.session_erasures(&session);
         Some(format!("{name}\u{1f}{erasures}"))
     }
 
@@ -192,9 +192,13 @@ impl Pipeline {
             Mutation::ResetMap(map) => Some(&map.session),
             _ => None,
         };
-        let stream = erased.and_then(|s| self.camera_stream(&s.robot_id, &s.session_id));
-        if let (Some(stream), Some(perception)) = (stream, &self.perception) {
-            perception.forget_stream(&stream);
+        if let (Some(session), Some(perception)) = (erased, &self.perception) {
+            if let Some(stream) = self
+                .camera_stream(&session.robot_id, &session.session_id)
+                .await
+            {
+                perception.forget_stream(&stream);
+            }
         }
         match &self.replica {
             Some(replica) => {
@@ -244,7 +248,7 @@ impl Pipeline {
     /// Stores one keyframe, perceiving its image first if it sent one.
     pub async fn insert(&self, pending: PendingKeyframe) -> Result<Inserted, PipelineError> {
         let (keyframes, mut resolved) = self.resolve_all(vec![pending]).await?;
-        self.check_dims(|_| "keyframe".into(), &keyframes)?;
+        self.check_dims(|_| "keyframe".into(), &keyframes).await?;
         let (features, timings) = resolved.pop().unwrap_or_default();
         let stored = self.write(self.insertion(keyframes)).await?;
         metrics::KEYFRAMES_INSERTED.inc();
@@ -265,7 +269,8 @@ impl Pipeline {
         for (_, timings) in &resolved {
             metrics::observe_stages(timings);
         }
-        self.check_dims(|i| format!("keyframes[{i}]"), &keyframes)?;
+        self.check_dims(|i| format!("keyframes[{i}]"), &keyframes)
+            .await?;
         let count = keyframes.len() as u64;
         let stored = self.write(self.insertion(keyframes)).await?;
         metrics::KEYFRAMES_INSERTED.inc_by(count);
@@ -309,7 +314,9 @@ impl Pipeline {
         };
         let mut perception_timings = Vec::new();
         if let Some(observation) = spec.observation.take() {
-            let stream = self.camera_stream(&spec.session.robot_id, &spec.session.session_id);
+            let stream = self
+                .camera_stream(&spec.session.robot_id, &spec.session.session_id)
+                .await;
             let (features, timings) = self.resolve(observation, stream.as_deref()).await?;
             spec.observation = Some(Observation::Features(features));
             perception_timings = timings;
@@ -394,7 +401,7 @@ impl Pipeline {
                 &mut p.observation,
                 Observation::Features(Features::default()),
             );
-            let stream = self.camera_stream(&p.key.robot_id, &p.key.session_id);
+            let stream = self.camera_stream(&p.key.robot_id, &p.key.session_id).await;
             observations.push((observation, stream));
             metas.push(p);
         }
@@ -416,12 +423,12 @@ impl Pipeline {
 
     /// Refuses descriptors whose length differs from the store's, naming the
     /// keyframe (the writer checks again, for the very first keyframes).
-    fn check_dims(
+    async fn check_dims(
         &self,
         field: impl Fn(usize) -> String,
         keyframes: &[SemanticKeyframe],
     ) -> Result<(), InvalidField> {
-        let stored = self.store.index().dim();
+        let stored = self.store.index_async().await.dim();
         let expected = if stored == 0 {
             keyframes.first().map_or(0, |k| k.features.descriptor.len())
         } else {
