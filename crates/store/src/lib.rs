@@ -178,12 +178,11 @@ impl Store {
 
     /// Read access to the index from async code. While the writer waits
     /// for the index (it waits for the scans in progress to end, tens of
-    /// milliseconds), [`Store::index`] blocks its thread, and a runtime
-    /// whose few worker threads block so stops serving every request
-    /// meanwhile, answers and inserts alike (a fleet server stalled for
-    /// seconds after a restart, when its first scans read cold pages).
-    /// This one sleeps a millisecond at a time instead. Hold it briefly,
-    /// never across an `.await`.
+    /// milliseconds, or an exact pass over a large store, hundreds),
+    /// [`Store::index`] blocks its thread, and a runtime whose few worker
+    /// threads block so stops serving every request meanwhile, answers
+    /// and inserts alike. This one sleeps a millisecond at a time instead.
+    /// Hold it briefly, never across an `.await`.
     pub async fn index_async(&self) -> parking_lot::RwLockReadGuard<'_, Index> {
         loop {
             if let Some(index) = self.index.try_read() {

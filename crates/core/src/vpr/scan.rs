@@ -39,8 +39,9 @@
 //! does: the same best K from a fraction of the f32 rows). Its cost grows
 //! with the logarithm of the store, not the store; what it can get wrong
 //! is only a row the graph did not propose. Its null model is approximate
-//! too, and cheap: a sample of 1–2 thousand eligible rows chosen by their tags as the full passes'
-//! (the tag a multiple of a power of two, a mask over the tags), each
+//! too, and cheap: a sample of 1–2 thousand eligible rows chosen by their
+//! tags as the full passes' (the tag a multiple of a power of two, a mask
+//! over the tags), each
 //! scored from the codes' estimates alone; the eligible count is the rows
 //! of the admitted maps. Bounding the sample and rescoring it exactly, as
 //! the compressed pass does, cost four times the graph's search and
@@ -1128,6 +1129,32 @@ mod tests {
         );
     }
 
+    /// A query history from generated descriptors and scenes.
+    fn features_of(history: Vec<(Vec<f32>, Vec<SceneClass>)>) -> Vec<Features> {
+        history
+            .into_iter()
+            .map(|(descriptor, scene)| Features {
+                descriptor,
+                scene,
+                ..Features::default()
+            })
+            .collect()
+    }
+
+    /// The defaults with `top_k` = `k`, averaging the temporal context or
+    /// taking its support.
+    fn params_of(k: usize, average: bool) -> VprParams {
+        VprParams {
+            top_k: k,
+            temporal: if average {
+                TemporalMode::Average
+            } else {
+                TemporalMode::Support
+            },
+            ..VprParams::default()
+        }
+    }
+
     proptest! {
         #[test]
         fn a_partition_never_changes_the_answer(
@@ -1136,10 +1163,7 @@ mod tests {
             member in prop::collection::vec(any::<bool>(), 80),
             k in 1usize..30,
         ) {
-            let history: Vec<Features> = history
-                .into_iter()
-                .map(|(descriptor, scene)| Features { descriptor, scene, ..Features::default() })
-                .collect();
+            let history = features_of(history);
             let params = VprParams { top_k: k, ..VprParams::default() };
             let rows = (0..m.descriptors().len()).filter(|&r| member[r]).collect();
             check_partition(&m, &history, &params, rows);
@@ -1153,15 +1177,8 @@ mod tests {
             k in 1usize..30,
             average in any::<bool>(),
         ) {
-            let history: Vec<Features> = history
-                .into_iter()
-                .map(|(descriptor, scene)| Features { descriptor, scene, ..Features::default() })
-                .collect();
-            let params = VprParams {
-                top_k: k,
-                temporal: if average { TemporalMode::Average } else { TemporalMode::Support },
-                ..VprParams::default()
-            };
+            let history = features_of(history);
+            let params = params_of(k, average);
             let candidates: Vec<usize> = (0..m.descriptors().len()).filter(|&r| member[r]).collect();
             let (every, kept, _) = best_of_candidates(&params, &history, &m, &candidates);
             prop_assert_eq!(kept, every);
@@ -1175,15 +1192,8 @@ mod tests {
             k in 1usize..30,
             average in any::<bool>(),
         ) {
-            let history: Vec<Features> = history
-                .into_iter()
-                .map(|(descriptor, scene)| Features { descriptor, scene, ..Features::default() })
-                .collect();
-            let params = VprParams {
-                top_k: k,
-                temporal: if average { TemporalMode::Average } else { TemporalMode::Support },
-                ..VprParams::default()
-            };
+            let history = features_of(history);
+            let params = params_of(k, average);
             let exact = run(&params, ScanMode::Exact, &history, &m, &mask);
             prop_assert_eq!(run(&params, ScanMode::Compressed, &history, &m, &mask), exact);
         }

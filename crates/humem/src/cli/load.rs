@@ -6,8 +6,8 @@
 //! previous answers (as ORB-SLAM3's asynchronous client does), so the
 //! server's latest-wins scheduling and ingest push-back are exercised for
 //! real. The robots' ticks are spread over the period, as independent
-//! robots' are (`--in-phase` sends a burst instead). Keyframes carry images from a folder or synthetic features. The
-//! report gives the achieved rate, latency percentiles (HdrHistogram),
+//! robots' are (`--in-phase` sends a burst instead). Keyframes carry
+//! images from a folder or synthetic features. The report gives the achieved rate, latency percentiles (HdrHistogram),
 //! superseded queries and errors by gRPC code.
 
 use std::collections::BTreeMap;
