@@ -13,10 +13,10 @@ use crate::vpr::scal::ScalQuery;
 use crate::vpr::scan::{scal_scan, ScalScan};
 use crate::vpr::testing::{scene_strategy, scope_strategy, unit_vector};
 
-const ROBOTS: &[&str] = &["r0", "r1", "r2", "r3", "r4", "r5"];
-const SESSIONS: &[&str] = &["s0", "s1"];
+pub(crate) const ROBOTS: &[&str] = &["r0", "r1", "r2", "r3", "r4", "r5"];
+pub(crate) const SESSIONS: &[&str] = &["s0", "s1"];
 
-fn keyframe(
+pub(crate) fn keyframe(
     robot: usize,
     session: usize,
     map: u64,
@@ -58,10 +58,10 @@ fn assert_same_bits(a: &ScalScan, b: &ScalScan) -> Result<(), TestCaseError> {
 
 /// One stored keyframe: robot, session, map, keyframe id, descriptor,
 /// scene.
-type StoredRow = (usize, usize, u64, u64, Vec<f32>, Vec<SceneClass>);
+pub(crate) type StoredRow = (usize, usize, u64, u64, Vec<f32>, Vec<SceneClass>);
 
 /// 5 robots (r5 never stores), each in 2 sessions of up to 3 maps.
-fn store_strategy() -> impl Strategy<Value = Vec<StoredRow>> {
+pub(crate) fn store_strategy() -> impl Strategy<Value = Vec<StoredRow>> {
     prop::collection::vec(
         (
             0usize..5,
@@ -251,7 +251,7 @@ fn unit_descriptor(robot: usize, id: u64) -> Vec<f32> {
 /// The index of `rows`, keeping a neighbour graph when `graph` is given:
 /// the last `graph` rows stored wait to enter it (as the store's writer
 /// leaves the newest keyframes until it adds them).
-fn index_of(rows: Vec<StoredRow>, graph: Option<usize>) -> Index {
+pub(crate) fn index_of(rows: Vec<StoredRow>, graph: Option<usize>) -> Index {
     let mut index = Index::new(6);
     if graph.is_some() {
         index.keep_neighbour_graph(None).unwrap();

@@ -338,8 +338,7 @@ impl Pipeline {
         let params = self.params.clone();
         let mut outcome = tokio::task::spawn_blocking(move || {
             let _scan_slot = scan_slot;
-            let index = index.read();
-            query::run(&index, &params, &spec)
+            query::run_releasing(index.read(), || index.read(), &params, &spec)
         })
         .await
         .map_err(|e| PipelineError::Task(e.to_string()))??;

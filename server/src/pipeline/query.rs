@@ -5,9 +5,12 @@
 //! layers, the rules on top, the selection); and spell out the evidence of
 //! each selected candidate (the classes and strings behind its matches).
 //!
-//! It runs under the index's read lock on a blocking thread; it allocates
-//! only for the query's own history and the returned candidates.
+//! It runs under the index's read lock on a blocking thread (an exact pass
+//! over a large store takes the lock afresh for each piece of rows, so the
+//! writer is not held up by it: [`run_releasing`]); it allocates only for
+//! the query's own history and the returned candidates.
 
+use std::ops::Deref;
 use std::time::Duration;
 
 use super::request::{InvalidField, Observation, QuerySpec};
@@ -157,7 +160,25 @@ pub fn run(
     params: &VprParams,
     spec: &QuerySpec,
 ) -> Result<QueryOutcome, QueryError> {
-    run_scanning(index, params, spec, true)
+    run_scanning(index, || index, params, spec, true)
+}
+
+/// [`run`] over an index shared with a writer: `first` is a hold of it
+/// and `read` takes another. An exact pass over a large store lets the
+/// index go between pieces of rows
+/// ([`humem_core::query::answer_releasing`]), so that the writer and the
+/// other queries do not wait for the whole pass.
+pub fn run_releasing<G, R>(
+    first: G,
+    read: R,
+    params: &VprParams,
+    spec: &QuerySpec,
+) -> Result<QueryOutcome, QueryError>
+where
+    G: Deref<Target = Index>,
+    R: Fn() -> G,
+{
+    run_scanning(first, read, params, spec, true)
 }
 
 /// [`run`] with a scan of every stored row, even when the query may see
@@ -169,29 +190,39 @@ pub fn run_full_scan(
     params: &VprParams,
     spec: &QuerySpec,
 ) -> Result<QueryOutcome, QueryError> {
-    run_scanning(index, params, spec, false)
+    run_scanning(index, || index, params, spec, false)
 }
 
-fn run_scanning(
-    index: &Index,
+fn run_scanning<G, R>(
+    index: G,
+    read: R,
     params: &VprParams,
     spec: &QuerySpec,
     partitioned: bool,
-) -> Result<QueryOutcome, QueryError> {
+) -> Result<QueryOutcome, QueryError>
+where
+    G: Deref<Target = Index>,
+    R: Fn() -> G,
+{
     let stored_row = spec
         .keyframe_id
         .and_then(|keyframe_id| index.row_of(&spec.session.keyframe(keyframe_id)));
-    let current = current_features(index, spec, stored_row)?;
-    let context = query_context(index, spec, stored_row)?;
-    let predecessor_rows = predecessor_rows(index, params, spec, stored_row);
+    let current = current_features(&index, spec, stored_row)?;
+    let context = query_context(&index, spec, stored_row)?;
+    let predecessor_rows = predecessor_rows(&index, params, spec, stored_row);
     let predecessors: Vec<Features> = predecessor_rows
         .iter()
         .map(|&row| index.keyframe(row).features)
         .collect();
+    let used_predecessors = predecessor_rows
+        .iter()
+        .map(|&row| index.meta(row).key.keyframe_id)
+        .collect();
     let mut history = vec![&current];
     history.extend(predecessors.iter());
-    let answer = query::answer(
+    let (index, answer) = query::answer_releasing(
         index,
+        read,
         params,
         &IndexQuery {
             observation: QueryObservation { history },
@@ -208,13 +239,10 @@ fn run_scanning(
         candidates: answer
             .candidates
             .into_iter()
-            .map(|r| candidate(index, &current, r))
+            .map(|r| candidate(&index, &current, r))
             .collect(),
         eligible: answer.eligible as u64,
-        used_predecessors: predecessor_rows
-            .iter()
-            .map(|&row| index.meta(row).key.keyframe_id)
-            .collect(),
+        used_predecessors,
         timings: answer.times.stages().to_vec(),
         threshold: answer.threshold,
         operating_point: answer.operating_point,

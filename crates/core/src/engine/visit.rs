@@ -1,5 +1,5 @@
-//! Which rows a scan visits and in what pieces: every stored row, or the
-//! sorted rows of a filter's partition, cut into blocks for the cores and
+//! Which rows a scan visits and in what pieces: every stored row, a span
+//! of them, or the sorted rows of a filter's partition, cut into blocks for the cores and
 //! each block into runs of consecutive rows (so rows kept in a file are
 //! read in one call a run).
 
@@ -9,6 +9,8 @@
 pub(crate) enum Visit<'a> {
     /// Rows `0..n`.
     All(usize),
+    /// `len` rows from `first` on (one piece of a pass over a large store).
+    Span(usize, usize),
     /// These rows, ascending.
     Only(&'a [usize]),
 }
@@ -18,6 +20,7 @@ impl<'a> Visit<'a> {
     pub(crate) fn len(&self) -> usize {
         match self {
             Visit::All(n) => *n,
+            Visit::Span(_, len) => *len,
             Visit::Only(rows) => rows.len(),
         }
     }
@@ -27,6 +30,7 @@ impl<'a> Visit<'a> {
     pub(crate) fn position(&self, row: usize) -> Option<usize> {
         match self {
             Visit::All(n) => (row < *n).then_some(row),
+            Visit::Span(first, len) => row.checked_sub(*first).filter(|i| i < len),
             Visit::Only(rows) => rows.binary_search(&row).ok(),
         }
     }
@@ -35,6 +39,7 @@ impl<'a> Visit<'a> {
     pub(crate) fn block(&self, first: usize, len: usize) -> Block<'a> {
         match self {
             Visit::All(_) => Block::Range(first, len),
+            Visit::Span(start, _) => Block::Range(start + first, len),
             Visit::Only(rows) => Block::Rows(&rows[first..first + len]),
         }
     }
@@ -95,5 +100,18 @@ mod tests {
         assert_eq!(all.position(9), Some(9));
         assert_eq!(all.position(10), None);
         assert_eq!(all.block(4, 3).runs(), vec![(0, 4, 3)]);
+    }
+
+    #[test]
+    fn a_span_is_visited_from_its_first_row() {
+        let span = Visit::Span(100, 20);
+        assert_eq!(span.len(), 20);
+        assert_eq!(span.position(100), Some(0));
+        assert_eq!(span.position(119), Some(19));
+        assert_eq!(span.position(99), None);
+        assert_eq!(span.position(120), None);
+        let block = span.block(5, 10);
+        assert_eq!(block.row(0), 105);
+        assert_eq!(block.runs(), vec![(0, 105, 10)]);
     }
 }

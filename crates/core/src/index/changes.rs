@@ -84,12 +84,23 @@ impl Index {
         removed
     }
 
+    /// How many times row numbers have stopped naming the keyframes they
+    /// named: every removal (the last row fills the hole, or the last row
+    /// goes) and every grouping counts once; appending a row keeps every
+    /// number. A reader that keeps row numbers across releases of the
+    /// index's lock (a pass over a large store in pieces) checks that this
+    /// did not change.
+    pub fn renumberings(&self) -> u64 {
+        self.renumberings
+    }
+
     /// Removes a keyframe's row, leaving its verdicts.
     fn remove_row(&mut self, key: &KeyframeKey) -> bool {
         let Some(row) = self.by_key.remove(key) else {
             return false;
         };
         self.changes += 1;
+        self.renumberings += 1;
         self.graph_remove(row);
         self.unlink(row);
         for text in distinct_texts(&self.rows[row].objects) {

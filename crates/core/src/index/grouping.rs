@@ -270,6 +270,7 @@ impl Index {
             None => self.grouped = to,
         }
         self.layout_epoch += 1;
+        self.renumberings += 1;
         self.changes += 1;
         order.len()
     }

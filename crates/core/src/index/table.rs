@@ -119,6 +119,8 @@ pub struct Index {
     pub(super) displaced: Vec<u32>,
     /// Groupings so far ([`Index::layout_epoch`]).
     pub(super) layout_epoch: u64,
+    /// Removals and groupings so far ([`Index::renumberings`]).
+    pub(super) renumberings: u64,
     /// Keyframes erased so far per session ([`Index::session_erasures`]);
     /// an entry is kept once made, so that the count never repeats.
     pub(super) erasures: HashMap<SessionKey, u64>,
@@ -246,6 +248,7 @@ impl Index {
             grouped: 0,
             displaced: Vec::new(),
             layout_epoch: 0,
+            renumberings: 0,
             erasures: HashMap::new(),
             changes: 0,
             neighbours: None,

@@ -50,6 +50,7 @@ pub mod ogtl;
 pub mod operating_point;
 pub mod osrl;
 pub mod params;
+pub(crate) mod piecewise;
 mod query_side;
 pub mod rank;
 pub mod scal;

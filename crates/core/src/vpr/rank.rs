@@ -152,20 +152,43 @@ where
     M: KeyframeMemory + ?Sized,
     E: RowFilter + ?Sized,
 {
-    let mut times = StageTimes::default();
-    let Some(current) = query.history.first() else {
+    if query.history.is_empty() {
         return Ranking::default();
-    };
+    }
     let scal_query = ScalQuery {
         history: query.history.clone(),
     };
     let clock = Instant::now();
+    let scan = scal_scan(params, &scal_query, memory, eligible);
+    rank_scanned(params, layers, query, memory, scan, clock.elapsed())
+}
+
+/// The layers after SCAL over the hits of a pass already made (`scan`,
+/// which took `scal_time`): [`rank_timed`]'s second half, for a pass made
+/// in pieces ([`crate::query`]).
+pub fn rank_scanned<M>(
+    params: &VprParams,
+    layers: Layers,
+    query: &QueryObservation,
+    memory: &M,
+    scan: ScalScan,
+    scal_time: Duration,
+) -> Ranking
+where
+    M: KeyframeMemory + ?Sized,
+{
+    let mut times = StageTimes {
+        scal: scal_time,
+        ..StageTimes::default()
+    };
+    let Some(current) = query.history.first() else {
+        return Ranking::default();
+    };
     let ScalScan {
         hits,
         null,
         eligible,
-    } = scal_scan(params, &scal_query, memory, eligible);
-    times.scal = clock.elapsed();
+    } = scan;
     let query_objects = &current.objects;
     // The query side of OGTL is computed once, not once per candidate.
     let clock = Instant::now();

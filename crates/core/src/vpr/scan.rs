@@ -323,7 +323,7 @@ pub(crate) fn by_score(a: &ScalHit, b: &ScalHit) -> Ordering {
 }
 
 /// Keeps the best `k` hits in ranking order: `O(N + k log k)`.
-fn top_k(hits: &mut Vec<ScalHit>, k: usize) {
+pub(super) fn top_k(hits: &mut Vec<ScalHit>, k: usize) {
     if k == 0 {
         hits.clear();
         return;
@@ -461,16 +461,16 @@ where
 
 /// The query's codes and the kernel that reads them: what the compressed
 /// pass bounds the rows' scores with.
-struct CodeBounds<'a, 'q> {
-    side: &'a QuerySide<'q>,
-    codes: &'a [QueryCode],
-    kernel: CodeKernel,
+pub(super) struct CodeBounds<'a, 'q> {
+    pub(super) side: &'a QuerySide<'q>,
+    pub(super) codes: &'a [QueryCode],
+    pub(super) kernel: CodeKernel,
 }
 
 impl CodeBounds<'_, '_> {
     /// Upper bounds on every visited row's `s_e` from the codes, block by
     /// block, in runs of consecutive rows.
-    fn upper_rows<M: KeyframeMemory + ?Sized>(
+    pub(super) fn upper_rows<M: KeyframeMemory + ?Sized>(
         &self,
         memory: &M,
         visit: &Visit,
@@ -564,7 +564,7 @@ impl CodeBounds<'_, '_> {
     /// Returns the bounds (NaN marks an ineligible row), the number of
     /// eligible rows, and each block's K highest bounds with their rows.
     #[allow(clippy::type_complexity)]
-    fn loose<M, E>(
+    pub(super) fn loose<M, E>(
         &self,
         params: &VprParams,
         memory: &M,
@@ -626,7 +626,7 @@ impl CodeBounds<'_, '_> {
     /// `floor`: the only ones that can be in the top K. Plain loops over
     /// blocks of the bounds: a rayon item per row would cost more than the
     /// comparison.
-    fn reaching<M: KeyframeMemory + ?Sized>(
+    pub(super) fn reaching<M: KeyframeMemory + ?Sized>(
         &self,
         params: &VprParams,
         memory: &M,
@@ -695,7 +695,7 @@ fn null_sample_rows<M: KeyframeMemory + ?Sized>(
 /// `[lo_(m), hi_(m)]` (the m-th smallest bounds). A row with
 /// `hi_i < lo_(m)` is below `v` and one with `lo_i > hi_(m)` above it, so
 /// `v` is the `(m − #below)`-th smallest exact score of the rest.
-fn sample_median<M: KeyframeMemory + ?Sized>(
+pub(super) fn sample_median<M: KeyframeMemory + ?Sized>(
     params: &VprParams,
     side: &QuerySide,
     memory: &M,
@@ -739,7 +739,7 @@ fn sample_median<M: KeyframeMemory + ?Sized>(
 }
 
 /// Keeps the `k` highest `(score, row)` pairs (ties: lower row), unordered.
-fn keep_highest(pairs: &mut Vec<(f32, usize)>, k: usize) {
+pub(super) fn keep_highest(pairs: &mut Vec<(f32, usize)>, k: usize) {
     if pairs.len() > k && k > 0 {
         pairs.select_nth_unstable_by(k - 1, |a, b| b.0.total_cmp(&a.0).then(a.1.cmp(&b.1)));
     }

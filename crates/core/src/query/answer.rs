@@ -1,28 +1,11 @@
-//! One query over the index, from the eligible rows to the selected
-//! candidates.
-//!
-//! The scan and the paper's layers rank the eligible rows
-//! ([`rank_timed`]); the rules on top of them that need the index itself
-//! come next, in this order: views of the query's own map turned away from
-//! it are left out ([`viewpoint`]), its candidates lying farther away
-//! than the map's drift explains lose score ([`drift`](crate::vpr::drift)),
-//! SLAM's verdicts change the scores
-//! ([`feedback`]), where asked those still beyond the drift envelope
-//! below one within it are left out ([`leave_out_rivals_beyond_drift`]),
-//! and the store's operating point gives the threshold
-//! unless the query names one; then the candidates are selected.
-//!
-//! It lives in the core, beside the ranking, so that a query goes down once
-//! and comes back once: the server resolves what the query is before (the
-//! features it sent or the stored keyframe it names, its context and
-//! temporal history) and spells the evidence out after, and never steps in
-//! between the scan and the selection. The rules' time is booked as the
-//! `rules` stage of [`StageTimes`].
+//! One query over an index held as it is: the eligible rows ranked, the
+//! rules on top of the ranking, the selection (see [the parent
+//! module](super) for the order of the rules and why they live here).
 
 use std::collections::BTreeSet;
 use std::time::Instant;
 
-use crate::index::Index;
+use crate::index::{Index, RowEligibility};
 use crate::keyframe::SessionKey;
 use crate::verdict::unix_now;
 use crate::vpr::drift::DriftEvidence;
@@ -81,24 +64,43 @@ pub struct Answer {
 }
 
 /// Ranks the index's eligible rows for `query`, applies the rules on top
-/// of the ranking and selects the candidates (see the module doc).
+/// of the ranking and selects the candidates (see the module doc). The
+/// whole query reads `index` as it is; [`answer_releasing`](super::answer_releasing)
+/// lets a pass over a large store go of the index between pieces.
 pub fn answer(index: &Index, params: &VprParams, query: &IndexQuery) -> Answer {
+    let eligible = eligibility(index, query);
+    let ranking = rank_timed(params, query.layers, &query.observation, index, &eligible);
+    answer_ranked(index, params, query, ranking)
+}
+
+/// The query's eligibility rule on `index`'s rows, as `query` asks to scan
+/// them.
+pub(super) fn eligibility<'i>(index: &'i Index, query: &IndexQuery) -> RowEligibility<'i> {
     let eligible = index.eligibility(&query.context);
     let eligible = if query.partitioned {
         eligible
     } else {
         eligible.without_partition()
     };
-    let eligible = if query.exact {
+    if query.exact {
         eligible.exact()
     } else {
         eligible
-    };
+    }
+}
+
+/// The rules on top of a ranking, then the selection.
+pub(super) fn answer_ranked(
+    index: &Index,
+    params: &VprParams,
+    query: &IndexQuery,
+    ranking: Ranking,
+) -> Answer {
     let Ranking {
         candidates: mut ranked,
         mut times,
         eligible: eligible_count,
-    } = rank_timed(params, query.layers, &query.observation, index, &eligible);
+    } = ranking;
     let clock = Instant::now();
     leave_out_turned_away(index, params, query.stored_row, &mut ranked);
     lower_beyond_drift(index, params, query.stored_row, &mut ranked);
