@@ -43,6 +43,8 @@
 //! store.
 
 use std::collections::HashSet;
+use std::sync::atomic::{AtomicUsize, Ordering};
+use std::sync::Arc;
 
 use super::table::{Index, NO_ROW};
 use crate::engine::matrix::MatrixRows;
@@ -124,6 +126,22 @@ impl Index {
     /// between (the snapshot writer), checks that it did not change.
     pub fn layout_epoch(&self) -> u64 {
         self.layout_epoch
+    }
+
+    /// Asks the index's writer not to group rows while the returned hold
+    /// lives: a pass that reads the rows in pieces, letting the lock go
+    /// between them, would have to start over after a grouping
+    /// ([`Index::renumberings`]). Grouping is housekeeping that can wait;
+    /// removals cannot, and still renumber rows.
+    pub fn hold_row_order(&self) -> RowOrderHold {
+        self.row_order_holds.fetch_add(1, Ordering::AcqRel);
+        RowOrderHold(self.row_order_holds.clone())
+    }
+
+    /// Whether a pass asked that rows not be grouped now
+    /// ([`Index::hold_row_order`]).
+    pub fn row_order_held(&self) -> bool {
+        self.row_order_holds.load(Ordering::Acquire) > 0
     }
 
     /// Counts a row put at `row` out of its map's run (by an erasure
@@ -273,6 +291,17 @@ impl Index {
         self.renumberings += 1;
         self.changes += 1;
         order.len()
+    }
+}
+
+/// A pass's request that the index's rows not be grouped, until dropped
+/// ([`Index::hold_row_order`]).
+#[derive(Debug)]
+pub struct RowOrderHold(Arc<AtomicUsize>);
+
+impl Drop for RowOrderHold {
+    fn drop(&mut self) {
+        self.0.fetch_sub(1, Ordering::AcqRel);
     }
 }
 

@@ -46,7 +46,9 @@ mod table;
 mod tests;
 
 pub use eligible::{RowEligibility, PARTITION_MAX_SHARE};
-pub use grouping::{RowGrouping, GROUP_TAIL_ROWS, GROUP_WINDOW_ROWS, REGROUP_DISPLACED_ROWS};
+pub use grouping::{
+    RowGrouping, RowOrderHold, GROUP_TAIL_ROWS, GROUP_WINDOW_ROWS, REGROUP_DISPLACED_ROWS,
+};
 pub use map_graphs::map_graph_name;
 pub use neighbours::{graph_key, GraphAdditions, PARALLEL_BACKLOG};
 pub use places::OPERATING_POINT_REFRESH_S;

@@ -8,7 +8,8 @@
 
 use rustc_hash::FxHashMap;
 use std::collections::{BTreeMap, HashMap};
-use std::sync::Mutex;
+use std::sync::atomic::AtomicUsize;
+use std::sync::{Arc, Mutex};
 
 use crate::engine::filter::RowGroup;
 use crate::engine::graph::NeighbourGraph;
@@ -121,6 +122,9 @@ pub struct Index {
     pub(super) layout_epoch: u64,
     /// Removals and groupings so far ([`Index::renumberings`]).
     pub(super) renumberings: u64,
+    /// Passes that keep row numbers across releases of the lock and ask
+    /// that rows not be grouped meanwhile ([`Index::hold_row_order`]).
+    pub(super) row_order_holds: Arc<AtomicUsize>,
     /// Keyframes erased so far per session ([`Index::session_erasures`]);
     /// an entry is kept once made, so that the count never repeats.
     pub(super) erasures: HashMap<SessionKey, u64>,
@@ -249,6 +253,7 @@ impl Index {
             displaced: Vec::new(),
             layout_epoch: 0,
             renumberings: 0,
+            row_order_holds: Arc::default(),
             erasures: HashMap::new(),
             changes: 0,
             neighbours: None,

@@ -11,9 +11,10 @@
 //! gets in between pieces. What it answers is what the one-hold pass
 //! answers over the rows as each piece found them: rows appended meanwhile
 //! are scanned last, in the hold that finishes the query (the layers after
-//! SCAL and the rules). Row numbers carry across pieces, so when a removal
-//! or a grouping renumbered rows meanwhile ([`Index::renumberings`]) the
-//! pass starts over, and after [`ATTEMPTS`] such starts it holds the index
+//! SCAL and the rules). Row numbers carry across pieces: the writer does
+//! not group rows while a pass is under way ([`Index::hold_row_order`]),
+//! and when a removal (or a grouping planned just before the pass began)
+//! renumbered rows meanwhile ([`Index::renumberings`]) the pass starts over, and after [`ATTEMPTS`] such starts it holds the index
 //! for the whole pass.
 //!
 //! Everything else (a small eligible set, a query through the neighbour
@@ -32,8 +33,8 @@ use crate::vpr::rank::rank_scanned;
 use crate::vpr::scal::ScalQuery;
 use crate::vpr::scan::codes_first_from;
 
-use crate::query::answer::{answer, answer_ranked, eligibility, Answer, IndexQuery};
 use crate::engine::filter::RowFilter;
+use crate::query::answer::{answer, answer_ranked, eligibility, Answer, IndexQuery};
 
 #[cfg(test)]
 #[path = "releasing_tests.rs"]
@@ -134,6 +135,8 @@ where
     R: Fn() -> G,
 {
     let mut index = first;
+    // The writer leaves the rows' order alone until the pass is done.
+    let _order = index.hold_row_order();
     let numbering = index.renumberings();
     let stored_at_start = index.len();
     // The partition as it was at the start: rows appended to it later

@@ -182,11 +182,15 @@ fn a_keyframe_stored_between_pieces_is_scanned_last() {
     let read = || {
         holds.set(holds.get() + 1);
         if holds.get() == 3 {
-            lock.write().unwrap().upsert(look_alike.clone());
+            let mut index = lock.write().unwrap();
+            // The writer is asked to leave the rows' order alone.
+            assert!(index.row_order_held());
+            index.upsert(look_alike.clone());
         }
         lock.read().unwrap()
     };
     let (index, pieces) = answer_in_pieces_of(16, lock.read().unwrap(), read, &params, &query);
+    assert!(!index.row_order_held(), "for as long as the pass lasts");
     let stored = index.row_of(&look_alike.key).expect("stored");
     assert_eq!(stored, 200, "appended after the first pass's rows");
     assert_eq!(pieces.candidates[0].row, stored);

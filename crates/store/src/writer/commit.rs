@@ -68,6 +68,7 @@ pub(crate) fn spawn(
         applied: checkpoints.applied.clone(),
         checkpoints: checkpoints.clone(),
         placement,
+        deferred: Default::default(),
     };
     let writer = Writer {
         trees,

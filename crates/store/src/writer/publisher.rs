@@ -13,7 +13,7 @@
 //! scans in progress end, so at a fleet's insert rate every write lock
 //! taken costs the second core part of a scan.
 
-use std::sync::atomic::{AtomicU64, Ordering};
+use std::sync::atomic::{AtomicU32, AtomicU64, Ordering};
 use std::sync::mpsc::TryRecvError;
 use std::sync::Arc;
 
@@ -72,30 +72,50 @@ pub(super) struct Publisher {
     pub(super) checkpoints: Arc<Checkpoints>,
     /// Moves the descriptors out of memory once the store is large.
     pub(super) placement: Arc<DescriptorPlacement>,
+    /// Groupings put off in a row because a query's pass held the rows'
+    /// order ([`MAX_DEFERRED_GROUPINGS`]).
+    pub(super) deferred: AtomicU32,
 }
+
+/// Groups of writes after which a due grouping goes ahead although a
+/// query's exact pass asks that rows keep their order (the pass then
+/// starts over): on a server whose every query is an exact pass
+/// (`vpr.exact`), some pass always runs, and the rows would never be
+/// grouped.
+const MAX_DEFERRED_GROUPINGS: u32 = 64;
 
 impl Publisher {
     /// Groups the index's newest rows by map once enough have come
     /// ([`Index::group_tail_if_due`]), then sorts again at most one window
     /// of older rows that erasures have scattered
     /// ([`Index::regroup_window_if_due`]), unless a snapshot is being
-    /// written: it reads the rows in pieces and relies on them not moving.
+    /// written or a query's exact pass is under way
+    /// ([`Index::row_order_held`], for at most [`MAX_DEFERRED_GROUPINGS`]
+    /// groups of writes in a row): both read the rows in pieces and rely
+    /// on them not moving.
     /// The new order and the copies of the rows are made under the read
     /// lock, while queries go on; only putting them in place takes the
     /// write lock. This thread is the index's only writer, so nothing
     /// changes in between (and a plan that found a change would do
     /// nothing).
     fn group_rows(&self) {
-        let (tail_due, window_due) = {
+        let (tail_due, _) = {
             let index = self.index.read();
-            (
+            let due = (
                 index.ungrouped_rows() >= humem_core::index::GROUP_TAIL_ROWS,
                 index.window_due().is_some(),
-            )
+            );
+            if due == (false, false) {
+                return;
+            }
+            if index.row_order_held()
+                && self.deferred.fetch_add(1, Ordering::Relaxed) < MAX_DEFERRED_GROUPINGS
+            {
+                return;
+            }
+            self.deferred.store(0, Ordering::Relaxed);
+            due
         };
-        if !tail_due && !window_due {
-            return;
-        }
         let Some(_no_snapshot) = self.checkpoints.writing.try_lock() else {
             return;
         };
