@@ -11,11 +11,11 @@
 //! gets in between pieces. What it answers is what the one-hold pass
 //! answers over the rows as each piece found them: rows appended meanwhile
 //! are scanned last, in the hold that finishes the query (the layers after
-//! SCAL and the rules). Row numbers carry across pieces: the writer does
-//! not group rows while a pass is under way ([`Index::hold_row_order`]),
-//! and when a removal (or a grouping planned just before the pass began)
-//! renumbered rows meanwhile ([`Index::renumberings`]) the pass starts over, and after [`ATTEMPTS`] such starts it holds the index
-//! for the whole pass.
+//! SCAL and the rules). Row numbers carry across pieces: the writer puts
+//! off grouping rows while a pass is under way ([`Index::hold_row_order`]),
+//! and when a removal (or a grouping) renumbered rows meanwhile
+//! ([`Index::renumberings`]) the pass starts over; after [`ATTEMPTS`] such
+//! starts it holds the index for the whole pass.
 //!
 //! Everything else (a small eligible set, a query through the neighbour
 //! graph, the f32 pass of a small store) is answered in the hold the
@@ -24,17 +24,16 @@
 use std::ops::Deref;
 use std::time::{Duration, Instant};
 
+use crate::engine::filter::RowFilter;
 use crate::engine::visit::Visit;
 use crate::index::Index;
+use crate::query::answer::{answer, answer_ranked, eligibility, Answer, IndexQuery};
 use crate::vpr::memory::KeyframeMemory;
 use crate::vpr::params::VprParams;
 use crate::vpr::piecewise::PiecewiseScan;
 use crate::vpr::rank::rank_scanned;
 use crate::vpr::scal::ScalQuery;
 use crate::vpr::scan::codes_first_from;
-
-use crate::engine::filter::RowFilter;
-use crate::query::answer::{answer, answer_ranked, eligibility, Answer, IndexQuery};
 
 #[cfg(test)]
 #[path = "releasing_tests.rs"]
