@@ -11,7 +11,7 @@ use crate::vpr::eligibility::{QueryContext, Scope};
 use crate::vpr::params::{ScanMode, VprParams};
 use crate::vpr::scal::ScalQuery;
 use crate::vpr::scan::{scal_scan, ScalScan};
-use crate::vpr::testing::{scene_strategy, scope_strategy, unit_vector};
+use crate::vpr::testing::{features_of, scene_strategy, scope_strategy, unit_vector};
 
 pub(crate) const ROBOTS: &[&str] = &["r0", "r1", "r2", "r3", "r4", "r5"];
 pub(crate) const SESSIONS: &[&str] = &["s0", "s1"];
@@ -34,6 +34,31 @@ pub(crate) fn keyframe(
         map_id: map,
         pose: Pose::default(),
         features,
+    }
+}
+
+/// Who asks a random query: robot and session (indices into [`ROBOTS`] and
+/// [`SESSIONS`]), keyframe id, frame id, map id and frame gap.
+pub(crate) type Asker = (usize, usize, Option<u64>, u64, u64, u64);
+
+/// The context of a query `asker` makes with `scope` and `readable`.
+pub(crate) fn context_of(
+    asker: Asker,
+    scope: Scope,
+    readable: Option<Vec<String>>,
+) -> QueryContext {
+    let (robot, session, keyframe_id, frame_id, map_id, min_frame_gap) = asker;
+    QueryContext {
+        session: SessionKey {
+            robot_id: ROBOTS[robot].into(),
+            session_id: SESSIONS[session].into(),
+        },
+        keyframe_id,
+        frame_id,
+        map_id,
+        min_frame_gap,
+        scope,
+        readable_robots: readable,
     }
 }
 
@@ -92,23 +117,8 @@ proptest! {
             let features = Features { descriptor, scene, ..Features::default() };
             index.upsert(keyframe(robot, session, map, id, features));
         }
-        let (robot, session, keyframe_id, frame_id, map_id, min_frame_gap) = query;
-        let context = QueryContext {
-            session: SessionKey {
-                robot_id: ROBOTS[robot].into(),
-                session_id: SESSIONS[session].into(),
-            },
-            keyframe_id,
-            frame_id,
-            map_id,
-            min_frame_gap,
-            scope,
-            readable_robots: readable,
-        };
-        let history: Vec<Features> = history
-            .into_iter()
-            .map(|(descriptor, scene)| Features { descriptor, scene, ..Features::default() })
-            .collect();
+        let context = context_of(query, scope, readable);
+        let history = features_of(history);
         let query = ScalQuery { history: history.iter().collect() };
         let filter = index.eligibility(&context);
         if let Some(rows) = filter.partition() {
@@ -304,23 +314,8 @@ proptest! {
                 without.remove(&key);
             }
         }
-        let (robot, session, keyframe_id, frame_id, map_id, min_frame_gap) = query;
-        let context = QueryContext {
-            session: SessionKey {
-                robot_id: ROBOTS[robot].into(),
-                session_id: SESSIONS[session].into(),
-            },
-            keyframe_id,
-            frame_id,
-            map_id,
-            min_frame_gap,
-            scope,
-            readable_robots: readable,
-        };
-        let history: Vec<Features> = history
-            .into_iter()
-            .map(|(descriptor, scene)| Features { descriptor, scene, ..Features::default() })
-            .collect();
+        let context = context_of(query, scope, readable);
+        let history = features_of(history);
         let query = ScalQuery { history: history.iter().collect() };
         let filter = with_graph.eligibility(&context);
         let reference = scal_scan(

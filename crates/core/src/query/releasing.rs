@@ -81,10 +81,10 @@ where
     let mut index = first;
     let mut query = query.clone();
     for _ in 0..ATTEMPTS {
-        if !in_pieces(piece_rows, &index, params, &query) {
+        let Some(partition) = in_pieces(piece_rows, &index, params, &query) else {
             break;
-        }
-        match pass_in_pieces(piece_rows, index, &read, params, &query) {
+        };
+        match pass_in_pieces(piece_rows, index, partition, &read, params, &query) {
             Ok(answered) => return answered,
             Err(renumbered) => {
                 index = renumbered;
@@ -103,28 +103,38 @@ fn stored_row(index: &Index, query: &IndexQuery) -> Option<usize> {
 }
 
 /// Whether `query` makes an exact pass over more than `piece_rows` rows,
-/// the codes first (the pass [`PiecewiseScan`] cuts into pieces).
-fn in_pieces(piece_rows: usize, index: &Index, params: &VprParams, query: &IndexQuery) -> bool {
+/// the codes first (the pass [`PiecewiseScan`] cuts into pieces); if so,
+/// the partition it visits (None: every row), gathered once for the pass.
+fn in_pieces(
+    piece_rows: usize,
+    index: &Index,
+    params: &VprParams,
+    query: &IndexQuery,
+) -> Option<Option<Vec<usize>>> {
     if !(query.exact || params.exact) || query.observation.history.is_empty() {
-        return false;
+        return None;
     }
     let eligible = eligibility(index, query);
-    let visited = eligible.partition().map_or(index.len(), <[usize]>::len);
+    let partition = eligible.partition();
+    let visited = partition.map_or(index.len(), <[usize]>::len);
     let matrix = index.descriptors();
     let rows = if matrix.in_memory() {
         visited
     } else {
         matrix.len()
     };
-    visited > piece_rows && codes_first_from(params.scan).is_some_and(|from| rows >= from)
+    (visited > piece_rows && codes_first_from(params.scan).is_some_and(|from| rows >= from))
+        .then(|| partition.map(<[usize]>::to_vec))
 }
 
-/// The pass in pieces, then the rest of the answer in the hold of the
-/// last piece. Err: rows were renumbered; the hold that saw it, to start
+/// The pass in pieces over `partition` (None: every row) as the hold
+/// `first` has it, then the rest of the answer in the hold of the last
+/// piece. Err: rows were renumbered; the hold that saw it, to start
 /// over in.
 fn pass_in_pieces<G, R>(
     piece_rows: usize,
     first: G,
+    partition: Option<Vec<usize>>,
     read: &R,
     params: &VprParams,
     query: &IndexQuery,
@@ -138,11 +148,8 @@ where
     let _order = index.hold_row_order();
     let numbering = index.renumberings();
     let stored_at_start = index.len();
-    // The partition as it was at the start: rows appended to it later
+    // The partition is as it was at the start: rows appended to it later
     // are past `stored_at_start`, scanned in the last piece.
-    let partition: Option<Vec<usize>> = eligibility(&index, query)
-        .partition()
-        .map(<[usize]>::to_vec);
     let visited = partition.as_ref().map_or(stored_at_start, Vec::len);
     let scal_query = ScalQuery {
         history: query.observation.history.clone(),

@@ -10,13 +10,13 @@ use proptest::prelude::*;
 use super::answer_in_pieces_of;
 use crate::engine::filter::RowFilter;
 use crate::index::Index;
-use crate::index_scan_tests::{index_of, keyframe, store_strategy, ROBOTS, SESSIONS};
+use crate::index_scan_tests::{context_of, index_of, keyframe, store_strategy, ROBOTS, SESSIONS};
 use crate::keyframe::{Features, SceneClass, SessionKey};
 use crate::query::{answer, Answer, IndexQuery};
 use crate::vpr::eligibility::{QueryContext, Scope};
 use crate::vpr::params::{Layers, ScanMode, VprParams};
 use crate::vpr::rank::QueryObservation;
-use crate::vpr::testing::{scene_strategy, scope_strategy, unit_vector};
+use crate::vpr::testing::{features_of, scene_strategy, scope_strategy, unit_vector};
 
 /// Every ranked candidate's row, scores, null model and `S_s`, as bits.
 fn bits(answer: &Answer) -> Vec<(usize, u32, u32, u32, usize, u32)> {
@@ -78,22 +78,12 @@ proptest! {
     ) {
         let index = index_of(rows, None);
         let (robot, session, frame_id, map_id, min_frame_gap) = query;
-        let context = QueryContext {
-            session: SessionKey {
-                robot_id: ROBOTS[robot].into(),
-                session_id: SESSIONS[session].into(),
-            },
-            keyframe_id: None,
-            frame_id,
-            map_id,
-            min_frame_gap,
+        let context = context_of(
+            (robot, session, None, frame_id, map_id, min_frame_gap),
             scope,
-            readable_robots: readable,
-        };
-        let history: Vec<Features> = history
-            .into_iter()
-            .map(|(descriptor, scene)| Features { descriptor, scene, ..Features::default() })
-            .collect();
+            readable,
+        );
+        let history = features_of(history);
         let params = compressed(k);
         let query = IndexQuery { partitioned, ..exact_query(context, &history) };
         let whole = answer(&index, &params, &query);

@@ -193,7 +193,9 @@ mod tests {
     use super::*;
     use crate::vpr::memory::VecMemory;
     use crate::vpr::scan::scal_scores;
-    use crate::vpr::testing::{close, features, memory_strategy, scene_strategy, unit_vector};
+    use crate::vpr::testing::{
+        close, features, features_of, memory_strategy, scene_strategy, unit_vector,
+    };
     use proptest::prelude::*;
 
     /// SCAL for one row written the plain way, one `cosine` per pair, as
@@ -455,10 +457,7 @@ mod tests {
             mask in prop::collection::vec(any::<bool>(), 60),
             k in 1usize..30,
         ) {
-            let feats: Vec<Features> = history
-                .into_iter()
-                .map(|(descriptor, scene)| Features { descriptor, scene, ..Features::default() })
-                .collect();
+            let feats = features_of(history);
             let query = ScalQuery { history: feats.iter().collect() };
             let params = VprParams { top_k: k, ..VprParams::default() };
             let eligible = |row: usize| mask[row];
@@ -478,10 +477,7 @@ mod tests {
             m in memory_strategy(4, 60),
             history in prop::collection::vec((unit_vector(4), scene_strategy()), 1..4),
         ) {
-            let feats: Vec<Features> = history
-                .into_iter()
-                .map(|(descriptor, scene)| Features { descriptor, scene, ..Features::default() })
-                .collect();
+            let feats = features_of(history);
             let query = ScalQuery { history: feats.iter().collect() };
             for hit in scal_scores(&VprParams::default(), &query, &m, &|_| true) {
                 prop_assert!((0.0..=1.0).contains(&hit.score));

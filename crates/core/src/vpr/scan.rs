@@ -754,7 +754,7 @@ mod tests {
     use crate::vpr::memory::VecMemory;
     use crate::vpr::params::TemporalMode;
     use crate::vpr::query_side::clip01_branchless;
-    use crate::vpr::testing::{memory_strategy, scene_strategy, unit_vector};
+    use crate::vpr::testing::{features_of, memory_strategy, scene_strategy, unit_vector};
     use proptest::prelude::*;
 
     /// Admits `admitted` rows (the rows of the maps a query may see), all
@@ -1127,18 +1127,6 @@ mod tests {
             scored < candidates.len() / 2,
             "{scored} of 256 scored exactly"
         );
-    }
-
-    /// A query history from generated descriptors and scenes.
-    fn features_of(history: Vec<(Vec<f32>, Vec<SceneClass>)>) -> Vec<Features> {
-        history
-            .into_iter()
-            .map(|(descriptor, scene)| Features {
-                descriptor,
-                scene,
-                ..Features::default()
-            })
-            .collect()
     }
 
     /// The defaults with `top_k` = `k`, averaging the temporal context or

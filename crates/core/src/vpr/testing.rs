@@ -116,6 +116,18 @@ pub fn unit_vector(dim: usize) -> impl Strategy<Value = Vec<f32>> {
     })
 }
 
+/// Query features from `(descriptor, scene)` pairs, the rest default.
+pub fn features_of(history: Vec<(Vec<f32>, Vec<SceneClass>)>) -> Vec<Features> {
+    history
+        .into_iter()
+        .map(|(descriptor, scene)| Features {
+            descriptor,
+            scene,
+            ..Features::default()
+        })
+        .collect()
+}
+
 /// A sparse scene distribution over a few class ids.
 pub fn scene_strategy() -> impl Strategy<Value = Vec<SceneClass>> {
     prop::collection::btree_map(0u32..6, 0.0f32..1.0, 0..4).prop_map(|m| {
