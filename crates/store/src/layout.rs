@@ -19,7 +19,7 @@ pub(crate) const META_DIM: &[u8] = b"descriptor_dim";
 /// Position of the last replicated-log entry applied (cluster mode).
 pub(crate) const META_LOG_POSITION: &[u8] = b"log_position";
 /// When the store was last opened for writing (Unix seconds, big-endian
-/// u64): written and flushed by every open (see `open::settle_log`).
+/// u64): written and flushed by every open (see `settle::settle_log`).
 pub(crate) const META_OPENED: &[u8] = b"opened_at";
 
 /// Version of the store's layout, recorded in its meta tree. 3 added the

@@ -56,6 +56,7 @@ mod placement;
 mod recorded;
 mod robot_counts;
 mod rollback;
+mod settle;
 pub mod snapshot;
 mod writer;
 

@@ -21,13 +21,13 @@ use crate::checkpoint::Checkpoints;
 use crate::error::StoreError;
 use crate::graph_file::{GraphOptions, GraphSource};
 use crate::layout::{
-    KEYFRAMES_TREE, META_DIM, META_FORMAT, META_OPENED, META_TREE, STORE_FORMAT,
-    VERDICTS_BY_CANDIDATE_TREE, VERDICTS_TREE,
+    KEYFRAMES_TREE, META_DIM, META_FORMAT, META_TREE, STORE_FORMAT, VERDICTS_BY_CANDIDATE_TREE,
+    VERDICTS_TREE,
 };
 use crate::options::StoreOptions;
 use crate::placement::DescriptorPlacement;
 use crate::writer::{self, WriterHandle};
-use crate::{codec, disk, graph_file, journal, snapshot};
+use crate::{codec, disk, graph_file, journal, settle, snapshot};
 
 /// Where the index came from at open.
 #[derive(Debug, Clone, PartialEq, Eq)]
@@ -180,7 +180,7 @@ pub(crate) fn open(
     if stale && snapshot_every > 0 {
         checkpoints.start_background();
     }
-    settle_log(&db, &meta)?;
+    settle::settle_log(&db, &meta, settle::SETTLE_FROM_BYTES)?;
     let writer = writer::spawn(
         writer::Trees {
             db: db.clone(),
@@ -202,25 +202,6 @@ pub(crate) fn open(
         checkpoints,
         report: opened,
     })
-}
-
-/// Writes and flushes when the store was opened ([`META_OPENED`]) before
-/// the writer starts. After an open, sled does a second or more of
-/// bookkeeping over the log's segments (`SegmentAccountant::stabilize`,
-/// 1.6 s of a core on a 20 GB store) once something is written, and
-/// writes wait for it: left to the first insert, it held that insert and
-/// every one queued behind it. Set going here, it is done by the time
-/// robots write a few seconds after the start (first inserts 5 s after a
-/// restart: p99 72-84 ms with this write, 1.6-1.7 s without, three
-/// restarts each way); writes that arrive at once still wait for it.
-/// The flush itself takes a few milliseconds.
-fn settle_log(db: &sled::Db, meta: &sled::Tree) -> Result<(), StoreError> {
-    let now = std::time::SystemTime::now()
-        .duration_since(std::time::UNIX_EPOCH)
-        .map_or(0, |d| d.as_secs());
-    meta.insert(META_OPENED, &now.to_be_bytes())?;
-    db.flush()?;
-    Ok(())
 }
 
 /// The store's descriptor length: the one recorded in `meta`, or `asked`
