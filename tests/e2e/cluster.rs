@@ -75,7 +75,19 @@ async fn ask(
     keyframe: u64,
     at: u64,
 ) -> Result<proto::QueryResponse, tonic::Status> {
+    ask_in(server, robot, keyframe, at, proto::Scope::Unspecified).await
+}
+
+/// [`ask`] over `scope`.
+async fn ask_in(
+    server: &Server,
+    robot: &str,
+    keyframe: u64,
+    at: u64,
+    scope: proto::Scope,
+) -> Result<proto::QueryResponse, tonic::Status> {
     let mut request = scenes::query_stored(robot, "s", keyframe);
+    request.scope = scope as i32;
     request.min_log_sequence = Some(at);
     request.threshold = Some(0.0);
     request.top_n = Some(5);
@@ -807,6 +819,41 @@ async fn a_new_replica_starts_from_the_snapshot_once_the_log_has_moved_past_it()
         );
         assert!(!a.candidates.is_empty());
         assert_eq!(answer(&a), answer(&b), "keyframe {id}");
+    }
+    // The map's own graph is not in the snapshot: the new replica builds
+    // it in the background, and once it holds every keyframe of the map,
+    // loop queries (which walk it) answer as on the first replica.
+    let maps_graphs = |stats: &proto::StatsResponse| {
+        let graph = stats.neighbour_graph.expect("a graph");
+        (
+            graph.map_graphs,
+            graph.map_graph_keyframes,
+            graph.map_graph_waiting,
+        )
+    };
+    let started = Instant::now();
+    while maps_graphs(&second.stats().await).2 > 0 {
+        assert!(
+            started.elapsed() < Duration::from_secs(20),
+            "the map's graph was not built within 20 s"
+        );
+        tokio::time::sleep(Duration::from_millis(100)).await;
+    }
+    let built = maps_graphs(&first.stats().await);
+    assert_eq!(built, (1, drive.len() as u64, 0));
+    assert_eq!(maps_graphs(&second.stats().await), built);
+    for (kf, _) in drive.iter().step_by(3) {
+        let id = scenes::id(kf);
+        let (a, b) = (
+            ask_in(&first, "r", id, last, proto::Scope::SameMap)
+                .await
+                .unwrap(),
+            ask_in(&second, "r", id, last, proto::Scope::SameMap)
+                .await
+                .unwrap(),
+        );
+        assert!(!a.candidates.is_empty());
+        assert_eq!(answer(&a), answer(&b), "loop query of keyframe {id}");
     }
 
     // A store written outside cluster mode is never replaced by the

@@ -19,9 +19,16 @@
 //! through the neighbour graph, and one mean over both made every query
 //! look as slow as the last exact one, so that a server answering in
 //! milliseconds refused most of what it was asked.
+//!
+//! An exact pass over a large store reads it in pieces and, between two
+//! pieces, gives its slot to the planned queries waiting
+//! ([`ScanSlot::give_way`]) before it goes on: a few exact queries an hour
+//! (or a sample that checks the planner) then delay the fleet's queries by
+//! a piece each, not by a pass, and a planned query counts each exact one
+//! ahead of it at the recent time of such a stretch.
 
 use std::sync::atomic::{AtomicU64, AtomicUsize, Ordering};
-use std::sync::Arc;
+use std::sync::{Arc, Mutex};
 use std::time::{Duration, Instant};
 
 use tokio::sync::{OwnedSemaphorePermit, Semaphore};
@@ -45,9 +52,14 @@ pub struct QueryAdmission {
     concurrent: usize,
     /// Queries running or waiting, per [`ScanKind`].
     queued: [AtomicUsize; 2],
+    /// Queries holding a slot, per [`ScanKind`].
+    running: [AtomicUsize; 2],
     /// Recent scan time per [`ScanKind`], an exponentially weighted mean,
     /// in microseconds (0: none yet).
     scan_micros: [AtomicU64; 2],
+    /// Recent time an exact pass held its slot before it gave way, the
+    /// same kind of mean (0: none gave way yet).
+    stretch_micros: AtomicU64,
     budget: Duration,
 }
 
@@ -74,13 +86,41 @@ pub struct ScanSlot {
     started: Instant,
     // Uncounted before the slot is let go (fields drop in this order).
     queued: Queued,
-    _permit: OwnedSemaphorePermit,
+    /// The slot, and since when this scan holds it; None only while an
+    /// exact pass waits to get it back ([`ScanSlot::give_way`]).
+    permit: Mutex<Option<(OwnedSemaphorePermit, Instant)>>,
 }
 
 impl Drop for ScanSlot {
     fn drop(&mut self) {
         let queued = &self.queued;
         queued.admission.record(queued.kind, self.started.elapsed());
+        queued.admission.running[queued.kind as usize].fetch_sub(1, Ordering::Relaxed);
+    }
+}
+
+impl ScanSlot {
+    /// For an exact pass, between two of its pieces: when planned queries
+    /// wait for a slot, lets this one go, then waits for it again behind
+    /// every query that was waiting. Blocks the calling thread, so it is
+    /// for a scan's blocking thread (inside the runtime that admitted the
+    /// query), never for async code. Planned scans never give way.
+    pub fn give_way(&self) {
+        let admission = &self.queued.admission;
+        if self.queued.kind != ScanKind::Exact || admission.waiting_of(ScanKind::Planned) == 0 {
+            return;
+        }
+        let mut permit = self.permit.lock().unwrap_or_else(|e| e.into_inner());
+        if let Some((held, since)) = permit.take() {
+            drop(held);
+            admission.record_stretch(since.elapsed());
+        }
+        admission.running[ScanKind::Exact as usize].fetch_sub(1, Ordering::Relaxed);
+        let again = tokio::runtime::Handle::current()
+            .block_on(admission.slots.clone().acquire_owned())
+            .expect("the admission semaphore is never closed");
+        admission.running[ScanKind::Exact as usize].fetch_add(1, Ordering::Relaxed);
+        *permit = Some((again, Instant::now()));
     }
 }
 
@@ -106,7 +146,9 @@ impl QueryAdmission {
             slots: Arc::new(Semaphore::new(concurrent)),
             concurrent,
             queued: [AtomicUsize::new(0), AtomicUsize::new(0)],
+            running: [AtomicUsize::new(0), AtomicUsize::new(0)],
             scan_micros: [AtomicU64::new(0), AtomicU64::new(0)],
+            stretch_micros: AtomicU64::new(0),
             budget,
         })
     }
@@ -121,10 +163,21 @@ impl QueryAdmission {
         }
     }
 
-    /// The queries running or waiting now, and how long a query arriving
-    /// now would wait for a slot: the rounds of `concurrent` scans ahead
-    /// of it, each round as long as the mean scan ahead.
-    fn ahead(&self) -> (usize, Duration) {
+    /// How long an exact scan ahead holds up a query of `kind`: its whole
+    /// pass for another exact one; for a planned one, the recent stretch
+    /// an exact pass held its slot before it gave way (its whole pass
+    /// until one has given way: passes over small stores never do).
+    fn exact_time_for(&self, kind: ScanKind) -> u64 {
+        match (kind, self.stretch_micros.load(Ordering::Relaxed)) {
+            (ScanKind::Planned, stretch) if stretch > 0 => stretch,
+            _ => self.scan_time(ScanKind::Exact),
+        }
+    }
+
+    /// The queries running or waiting now, and how long a query of `kind`
+    /// arriving now would wait for a slot: the rounds of `concurrent`
+    /// scans ahead of it, each round as long as the mean scan ahead.
+    fn ahead(&self, kind: ScanKind) -> (usize, Duration) {
         let counts = self.queued.each_ref().map(|q| q.load(Ordering::Relaxed));
         let ahead: usize = counts.iter().sum();
         let rounds = (ahead + 1)
@@ -133,10 +186,8 @@ impl QueryAdmission {
         if rounds == 0 {
             return (ahead, Duration::ZERO);
         }
-        let work: u64 = [ScanKind::Planned, ScanKind::Exact]
-            .iter()
-            .map(|&k| counts[k as usize] as u64 * self.scan_time(k))
-            .sum();
+        let work = counts[ScanKind::Planned as usize] as u64 * self.scan_time(ScanKind::Planned)
+            + counts[ScanKind::Exact as usize] as u64 * self.exact_time_for(kind);
         (
             ahead,
             Duration::from_micros(work / ahead as u64 * rounds as u64),
@@ -157,7 +208,7 @@ impl QueryAdmission {
         waited: Duration,
         deadline: Option<Duration>,
     ) -> Result<ScanSlot, Busy> {
-        let (ahead, wait) = self.ahead();
+        let (ahead, wait) = self.ahead(kind);
         let scan = Duration::from_micros(self.scan_time(kind));
         let expected = wait + scan;
         let budget = deadline
@@ -185,10 +236,12 @@ impl QueryAdmission {
             .acquire_owned()
             .await
             .expect("the admission semaphore is never closed");
+        self.running[kind as usize].fetch_add(1, Ordering::Relaxed);
+        let started = Instant::now();
         Ok(ScanSlot {
-            started: Instant::now(),
+            started,
             queued,
-            _permit: permit,
+            permit: Mutex::new(Some((permit, started))),
         })
     }
 
@@ -200,21 +253,38 @@ impl QueryAdmission {
         queued.saturating_sub(running)
     }
 
-    /// Folds one scan's time into its kind's recent mean (weight 1/4).
-    fn record(&self, kind: ScanKind, took: Duration) {
-        let took = took.as_micros().min(u128::from(u64::MAX)) as u64;
-        let _ = self.scan_micros[kind as usize].fetch_update(
-            Ordering::Relaxed,
-            Ordering::Relaxed,
-            |mean| {
-                Some(if mean == 0 {
-                    took
-                } else {
-                    (3 * mean + took) / 4
-                })
-            },
-        );
+    /// Queries of `kind` waiting for a slot (an exact pass that gave way
+    /// counts among them until it has its slot back).
+    fn waiting_of(&self, kind: ScanKind) -> usize {
+        let k = kind as usize;
+        self.queued[k]
+            .load(Ordering::Relaxed)
+            .saturating_sub(self.running[k].load(Ordering::Relaxed))
     }
+
+    /// Folds one scan's time into its kind's recent mean.
+    fn record(&self, kind: ScanKind, took: Duration) {
+        fold(&self.scan_micros[kind as usize], took);
+    }
+
+    /// Folds how long an exact pass held its slot before it gave way into
+    /// the recent mean of such stretches.
+    fn record_stretch(&self, held: Duration) {
+        fold(&self.stretch_micros, held);
+    }
+}
+
+/// Folds `took` into the exponentially weighted mean in `mean` (weight
+/// 1/4; the first time recorded is the mean).
+fn fold(mean: &AtomicU64, took: Duration) {
+    let took = took.as_micros().min(u128::from(u64::MAX)) as u64;
+    let _ = mean.fetch_update(Ordering::Relaxed, Ordering::Relaxed, |mean| {
+        Some(if mean == 0 {
+            took
+        } else {
+            (3 * mean + took) / 4
+        })
+    });
 }
 
 /// The caller's deadline from a `grpc-timeout` header value (`"250m"`:
@@ -327,13 +397,13 @@ mod tests {
     }
 
     /// A planned query admitted in a task of its own, once it waits for
-    /// its slot.
+    /// its slot (or was refused: the task then holds the refusal).
     async fn quick_query_waiting(
         admission: &Arc<QueryAdmission>,
     ) -> tokio::task::JoinHandle<Result<(), Busy>> {
         let a = admission.clone();
         let task = tokio::spawn(async move { admit_now(&a, ScanKind::Planned).await.map(|_| ()) });
-        while admission.waiting() == 0 {
+        while admission.waiting() == 0 && !task.is_finished() {
             tokio::task::yield_now().await;
         }
         task
@@ -374,5 +444,93 @@ mod tests {
             admission.queued[ScanKind::Planned as usize].load(Ordering::Relaxed),
             0
         );
+    }
+
+    #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+    async fn an_exact_pass_gives_its_slot_to_the_planned_queries_waiting() {
+        let admission = QueryAdmission::new(1, Duration::from_secs(10));
+        let exact = admit_now(&admission, ScanKind::Exact).await.unwrap();
+        // Nobody waits: the pass keeps its slot.
+        let exact = tokio::task::spawn_blocking(move || {
+            exact.give_way();
+            exact
+        })
+        .await
+        .unwrap();
+        assert_eq!(admission.slots.available_permits(), 0);
+        assert_eq!(admission.stretch_micros.load(Ordering::Relaxed), 0);
+        // A planned query waits: the pass lets it run first and goes on
+        // once it is done.
+        let (ran, mut ran_seen) = tokio::sync::oneshot::channel();
+        let planned = {
+            let a = admission.clone();
+            tokio::spawn(async move {
+                let slot = admit_now(&a, ScanKind::Planned).await.unwrap();
+                tokio::time::sleep(Duration::from_millis(30)).await;
+                ran.send(()).unwrap();
+                drop(slot);
+            })
+        };
+        while admission.waiting_of(ScanKind::Planned) == 0 {
+            tokio::task::yield_now().await;
+        }
+        let exact = tokio::task::spawn_blocking(move || {
+            exact.give_way();
+            exact
+        })
+        .await
+        .unwrap();
+        ran_seen
+            .try_recv()
+            .expect("the planned query ran while the pass waited");
+        planned.await.unwrap();
+        assert_eq!(
+            admission.slots.available_permits(),
+            0,
+            "the pass has its slot back"
+        );
+        assert!(admission.stretch_micros.load(Ordering::Relaxed) > 0);
+        assert_eq!(
+            admission.running[ScanKind::Exact as usize].load(Ordering::Relaxed),
+            1
+        );
+        drop(exact);
+        assert_eq!(admission.slots.available_permits(), 1);
+        assert_eq!(
+            admission
+                .running
+                .each_ref()
+                .map(|r| r.load(Ordering::Relaxed)),
+            [0, 0]
+        );
+        // A planned scan never gives way.
+        let planned = admit_now(&admission, ScanKind::Planned).await.unwrap();
+        let waiting = quick_query_waiting(&admission).await;
+        let planned = tokio::task::spawn_blocking(move || {
+            planned.give_way();
+            planned
+        })
+        .await
+        .unwrap();
+        assert_eq!(admission.waiting_of(ScanKind::Planned), 1);
+        drop(planned);
+        waiting.await.unwrap().unwrap();
+    }
+
+    #[tokio::test]
+    async fn a_quick_query_behind_an_exact_pass_that_gives_way_expects_a_stretch() {
+        let admission = QueryAdmission::new(1, Duration::from_millis(250));
+        admission.record(ScanKind::Planned, Duration::from_millis(5));
+        admission.record(ScanKind::Exact, Duration::from_millis(600));
+        // Passes held their slot 20 ms at a time before giving way.
+        admission.record_stretch(Duration::from_millis(20));
+        let exact = admit_now(&admission, ScanKind::Exact).await.unwrap();
+        // A quick query behind it expects 20 + 5 ms: admitted.
+        let quick = quick_query_waiting(&admission).await;
+        // Another exact query still counts the whole pass ahead of it.
+        let busy = admit_now(&admission, ScanKind::Exact).await.unwrap_err();
+        assert!(busy.expected >= Duration::from_millis(600), "{busy:?}");
+        drop(exact);
+        quick.await.unwrap().unwrap();
     }
 }

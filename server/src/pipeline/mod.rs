@@ -337,8 +337,13 @@ impl Pipeline {
         let index = self.store.index_handle();
         let params = self.params.clone();
         let mut outcome = tokio::task::spawn_blocking(move || {
-            let _scan_slot = scan_slot;
-            query::run_releasing(index.read(), || index.read(), &params, &spec)
+            // Between two pieces of an exact pass, the planned queries
+            // waiting for a slot go first.
+            let read = || {
+                scan_slot.give_way();
+                index.read()
+            };
+            query::run_releasing(index.read(), read, &params, &spec)
         })
         .await
         .map_err(|e| PipelineError::Task(e.to_string()))??;
