@@ -13,7 +13,7 @@
 //! time: an idle store never writes one.
 
 use std::path::PathBuf;
-use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
+use std::sync::atomic::{AtomicBool, AtomicU64, AtomicUsize, Ordering};
 use std::sync::Arc;
 use std::time::{Duration, Instant};
 
@@ -55,6 +55,11 @@ pub(crate) struct Checkpoints {
     /// Sequence of the newest snapshot on disk that matches this store
     /// (`u64::MAX`: none).
     pub written: AtomicU64,
+    /// Keyframes that waited to enter the neighbour graphs when the
+    /// graphs on disk were written (or when the store was opened): a
+    /// shutdown whose snapshot is current still saves the graphs if fewer
+    /// wait now, so that what was built since is not built again.
+    pub graph_waiting_saved: AtomicUsize,
     /// Set while a background snapshot runs.
     pub running: AtomicBool,
     /// One snapshot at a time.
@@ -105,6 +110,7 @@ impl Checkpoints {
         let started = Instant::now();
         let applied = self.applied.load(Ordering::Acquire);
         if applied == self.written.load(Ordering::Acquire) {
+            self.save_graphs_built_since();
             return Ok(None);
         }
         // The new file is written beside the old one: room for a whole
@@ -126,7 +132,11 @@ impl Checkpoints {
                     return Err(e.into());
                 }
             };
+        let waiting = self.index.read().neighbour_graph_waiting();
         let graph = graph_file::save(&self.dir, &self.index);
+        if graph.is_some() {
+            self.graph_waiting_saved.store(waiting, Ordering::Relaxed);
+        }
         let rows = self.index.read().len();
         let written = started.elapsed();
         if let Some(graph) = graph {
@@ -151,5 +161,30 @@ impl Checkpoints {
             "index snapshot written"
         );
         Ok(Some(report))
+    }
+
+    /// Saves the neighbour graphs alone, beside the current snapshot,
+    /// where fewer keyframes wait to enter them than when they were last
+    /// written: after a restart whose saved graphs lacked many keyframes
+    /// (written while inserts came faster than the graphs took them, or
+    /// a map's graph that was missing), the writer builds the rest in the
+    /// background, and a store left idle since would otherwise lose that
+    /// work at every clean shutdown. The graphs may hold keyframes newer
+    /// than the snapshot, as those saved with a snapshot may.
+    fn save_graphs_built_since(&self) {
+        let waiting = self.index.read().neighbour_graph_waiting();
+        if waiting >= self.graph_waiting_saved.load(Ordering::Relaxed) {
+            return;
+        }
+        let started = Instant::now();
+        if let Some(graph) = graph_file::save(&self.dir, &self.index) {
+            graph.publish();
+            self.graph_waiting_saved.store(waiting, Ordering::Relaxed);
+            tracing::info!(
+                waiting,
+                ms = started.elapsed().as_millis() as u64,
+                "neighbour graphs saved beside the current snapshot"
+            );
+        }
     }
 }

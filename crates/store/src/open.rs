@@ -9,7 +9,7 @@
 //! puts the parts together.
 
 use std::path::Path;
-use std::sync::atomic::{AtomicBool, AtomicU64};
+use std::sync::atomic::{AtomicBool, AtomicU64, AtomicUsize};
 use std::sync::Arc;
 use std::time::{Duration, Instant};
 
@@ -164,6 +164,7 @@ pub(crate) fn open(
         every: snapshot_every,
         since: AtomicU64::new(0),
         written: AtomicU64::new(snapshot_sequence.unwrap_or(u64::MAX)),
+        graph_waiting_saved: AtomicUsize::new(index.read().neighbour_graph_waiting()),
         running: AtomicBool::new(false),
         writing: parking_lot::Mutex::new(()),
         disk: disk::DiskGuard::new(dir, min_free_bytes),

@@ -617,6 +617,29 @@ async fn a_store_without_a_saved_graph_builds_one_at_open() {
 }
 
 #[tokio::test]
+async fn graphs_built_since_the_open_are_saved_where_the_snapshot_is_current() {
+    let dir = tempfile::tempdir().unwrap();
+    {
+        let store = open_manual(dir.path());
+        insert(&store, (0..25).map(|i| kf("a", "s", i, 0)).collect()).await;
+        store.snapshot().unwrap();
+    }
+    {
+        let store = open_with_graph(dir.path());
+        assert_eq!(store.opened().graph, Some(graph_file::GraphSource::Built));
+        assert!(store.wait_for_neighbour_graph(std::time::Duration::from_secs(60)));
+        // Nothing was written since the snapshot, so none is written (as
+        // at a shutdown), but the graph built since the open is saved.
+        assert!(store.snapshot().unwrap().is_none());
+        assert!(graph_file::path(dir.path()).exists());
+    }
+    let store = open_with_graph(dir.path());
+    assert_eq!(store.opened().graph, Some(graph_file::GraphSource::Loaded));
+    assert_eq!(store.index().neighbour_graph_waiting(), 0);
+    assert_eq!(store.index().neighbour_graph().unwrap().len(), 25);
+}
+
+#[tokio::test]
 async fn a_snapshot_without_a_graph_removes_the_one_an_earlier_open_saved() {
     let dir = tempfile::tempdir().unwrap();
     {
