@@ -135,6 +135,7 @@ pub(crate) fn open(
     // the tree is in key order (robot, session, keyframe): the writer
     // groups only what is appended from now on.
     index.mark_grouped();
+    regroup_at_open(&mut index);
     load_verdicts(&verdicts, &mut index)?;
     let opened = OpenReport {
         source,
@@ -446,5 +447,32 @@ fn check_format(meta: &sled::Tree) -> Result<(), StoreError> {
                 Err(StoreError::UnsupportedFormat { found, supported })
             }
         }
+    }
+}
+
+/// How long the open spends sorting again the windows of rows left
+/// scattered ([`regroup_at_open`]).
+const REGROUP_AT_OPEN: std::time::Duration = std::time::Duration::from_secs(2);
+
+/// Sorts again, before the store takes requests, the windows of rows
+/// that the last run left scattered, for at most [`REGROUP_AT_OPEN`]:
+/// the rows written after the last grouping before a shutdown always
+/// form one such window, and the writer would otherwise sort it under
+/// the first load, holding the index (and every insert behind it) for a
+/// few hundred milliseconds at a million keyframes. A store scattered
+/// all over by erasures leaves the rest to the writer, one window per
+/// group of writes.
+fn regroup_at_open(index: &mut Index) {
+    let started = std::time::Instant::now();
+    let mut windows = 0;
+    while started.elapsed() < REGROUP_AT_OPEN && index.regroup_window_if_due() > 0 {
+        windows += 1;
+    }
+    if windows > 0 {
+        tracing::info!(
+            windows,
+            ms = started.elapsed().as_millis() as u64,
+            "sorted again the rows the last run left scattered"
+        );
     }
 }

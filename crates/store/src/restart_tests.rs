@@ -388,6 +388,39 @@ fn reopens_from_its_snapshot_as_the_tree(dir: &Path, keyframes: usize) {
 }
 
 #[tokio::test]
+async fn rows_written_after_the_last_grouping_are_sorted_at_open() {
+    use humem_core::index::GROUP_TAIL_ROWS;
+    let dir = tempfile::tempdir().unwrap();
+    // Fewer rows than a grouping takes, four robots interleaved, as a
+    // fleet leaves them at a shutdown.
+    let per_robot = (GROUP_TAIL_ROWS / 8) as u64;
+    {
+        let store = open_manual(dir.path());
+        for id in 0..per_robot {
+            insert(
+                &store,
+                (0..4).map(|robot| fleet_keyframe(robot, id)).collect(),
+            )
+            .await;
+        }
+        assert!(store.index().ungrouped_rows() > 0);
+        store.snapshot().unwrap();
+    }
+    let store = open_manual(dir.path());
+    // Sorted before the store took a request, not by its writer later.
+    assert_eq!(store.index().window_due(), None);
+    let index = store.index();
+    let runs = 1
+        + (1..index.len())
+            .filter(|&row| index.meta(row - 1).key.robot_id != index.meta(row).key.robot_id)
+            .count();
+    assert_eq!(runs, 4, "one run of rows per robot");
+    drop(index);
+    drop(store);
+    reopens_from_its_snapshot_as_the_tree(dir.path(), 4 * per_robot as usize);
+}
+
+#[tokio::test]
 async fn the_writer_groups_a_fleets_newest_rows_by_map_and_a_reopen_finds_the_same_store() {
     use humem_core::index::GROUP_TAIL_ROWS;
     let dir = tempfile::tempdir().unwrap();
