@@ -132,11 +132,7 @@ impl Checkpoints {
                     return Err(e.into());
                 }
             };
-        let waiting = self.index.read().neighbour_graph_waiting();
-        let graph = graph_file::save(&self.dir, &self.index);
-        if graph.is_some() {
-            self.graph_waiting_saved.store(waiting, Ordering::Relaxed);
-        }
+        let graph = self.save_graphs();
         let rows = self.index.read().len();
         let written = started.elapsed();
         if let Some(graph) = graph {
@@ -163,6 +159,15 @@ impl Checkpoints {
         Ok(Some(report))
     }
 
+    /// Writes the neighbour graphs beside their files, to be published,
+    /// and records how many keyframes waited to enter them then.
+    fn save_graphs(&self) -> Option<graph_file::UnpublishedGraph> {
+        let waiting = self.index.read().neighbour_graph_waiting();
+        let graph = graph_file::save(&self.dir, &self.index)?;
+        self.graph_waiting_saved.store(waiting, Ordering::Relaxed);
+        Some(graph)
+    }
+
     /// Saves the neighbour graphs alone, beside the current snapshot,
     /// where fewer keyframes wait to enter them than when they were last
     /// written: after a restart whose saved graphs lacked many keyframes
@@ -177,9 +182,8 @@ impl Checkpoints {
             return;
         }
         let started = Instant::now();
-        if let Some(graph) = graph_file::save(&self.dir, &self.index) {
+        if let Some(graph) = self.save_graphs() {
             graph.publish();
-            self.graph_waiting_saved.store(waiting, Ordering::Relaxed);
             tracing::info!(
                 waiting,
                 ms = started.elapsed().as_millis() as u64,

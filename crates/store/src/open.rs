@@ -132,8 +132,9 @@ pub(crate) fn open(
     let verdicts_by_candidate = db.open_tree(VERDICTS_BY_CANDIDATE_TREE)?;
     let mut index = index;
     // A snapshot keeps the rows in the order they were grouped in, and
-    // the tree is in key order (robot, session, keyframe): the writer
-    // groups only what is appended from now on.
+    // the tree is in key order (robot, session, keyframe): only the rows
+    // the last run had not grouped yet are sorted now, and the writer
+    // groups what is appended from now on.
     index.mark_grouped();
     regroup_at_open(&mut index);
     load_verdicts(&verdicts, &mut index)?;
@@ -452,7 +453,7 @@ fn check_format(meta: &sled::Tree) -> Result<(), StoreError> {
 
 /// How long the open spends sorting again the windows of rows left
 /// scattered ([`regroup_at_open`]).
-const REGROUP_AT_OPEN: std::time::Duration = std::time::Duration::from_secs(2);
+const REGROUP_AT_OPEN: Duration = Duration::from_secs(2);
 
 /// Sorts again, before the store takes requests, the windows of rows
 /// that the last run left scattered, for at most [`REGROUP_AT_OPEN`]:
@@ -463,7 +464,7 @@ const REGROUP_AT_OPEN: std::time::Duration = std::time::Duration::from_secs(2);
 /// all over by erasures leaves the rest to the writer, one window per
 /// group of writes.
 fn regroup_at_open(index: &mut Index) {
-    let started = std::time::Instant::now();
+    let started = Instant::now();
     let mut windows = 0;
     while started.elapsed() < REGROUP_AT_OPEN && index.regroup_window_if_due() > 0 {
         windows += 1;

@@ -248,9 +248,7 @@ impl QueryAdmission {
     /// Queries waiting for a slot: those counted, less those running.
     #[cfg(test)]
     fn waiting(&self) -> usize {
-        let queued: usize = self.queued.iter().map(|q| q.load(Ordering::Relaxed)).sum();
-        let running = self.concurrent - self.slots.available_permits();
-        queued.saturating_sub(running)
+        self.waiting_of(ScanKind::Planned) + self.waiting_of(ScanKind::Exact)
     }
 
     /// Queries of `kind` waiting for a slot (an exact pass that gave way
